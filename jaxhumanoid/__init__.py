@@ -1,0 +1,14 @@
+"""jaxhumanoid: differentiable trajectory optimisation of a planar humanoid with unscheduled contacts.
+
+Importing the package turns on float64 in JAX (``jax_enable_x64``): every model, transcription
+and solver function works in double precision.
+"""
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+from jaxhumanoid.model.params import ContactParams, FootParams, Humanoid  # noqa: E402
+
+__all__ = ["ContactParams", "FootParams", "Humanoid"]
+__version__ = "0.1.0"

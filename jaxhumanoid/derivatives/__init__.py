@@ -1,0 +1,1 @@
+"""Sparse derivatives from JAX: sparsity patterns, graph colouring, compressed evaluation."""

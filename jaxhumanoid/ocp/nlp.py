@@ -1,0 +1,74 @@
+"""The NLP (7) as a handful of pure functions: the one interface every solver consumes.
+
+    minimize_x  f(x, p)   subject to   gl <= g(x, p) <= gu,   xl <= x <= xu
+
+``p`` is a pytree of everything numeric the problem depends on (model, contact and cost
+parameters, goal, horizon), so that solves can be batched with ``vmap`` over ``p`` and
+differentiated with respect to it. Everything in ``NLP`` itself is static (shapes, sparsity,
+stage layout) and hashable by identity, so an NLP can be closed over by ``jit``.
+
+Sparse derivatives are given as values on fixed coordinate patterns:
+
+    jac_values(x, p)                 -> (nnz_jac,)  at (jac_rows, jac_cols) of dg/dx
+    hess_values(x, lam, sigma, p)    -> (nnz_hess,) at (hess_rows, hess_cols), lower triangle
+                                        (row >= col) of sigma * d2f/dx2 + sum_j lam_j d2g_j/dx2
+
+Stage layout: ``var_stage[i]`` and ``con_stage[j]`` give the stage (time interval) of variable i
+and constraint j. Every Jacobian entry couples a constraint of stage k only with variables of
+stages k and k+1, and every Hessian entry couples variables of stages differing by at most one,
+so the KKT matrix ordered stage by stage is block-tridiagonal.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Callable
+
+import numpy as np
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class NLP:
+    n: int
+    m: int
+    f: Callable[[Any, Any], Any]
+    g: Callable[[Any, Any], Any]
+    grad: Callable[[Any, Any], Any]
+    jac_values: Callable[[Any, Any], Any]
+    hess_values: Callable[[Any, Any, Any, Any], Any]
+    jac_rows: np.ndarray
+    jac_cols: np.ndarray
+    hess_rows: np.ndarray
+    hess_cols: np.ndarray
+    var_stage: np.ndarray
+    con_stage: np.ndarray
+    name: str = "nlp"
+
+    @property
+    def nnz_jac(self) -> int:
+        return int(self.jac_rows.size)
+
+    @property
+    def nnz_hess(self) -> int:
+        return int(self.hess_rows.size)
+
+
+@dataclasses.dataclass(frozen=True)
+class Bounds:
+    """Numeric bounds and the starting point; -inf/inf mark a missing bound."""
+
+    x0: np.ndarray
+    xl: np.ndarray
+    xu: np.ndarray
+    gl: np.ndarray
+    gu: np.ndarray
+
+    def __post_init__(self):
+        n, m = self.x0.shape[0], self.gl.shape[0]
+        for name, arr, size in (("xl", self.xl, n), ("xu", self.xu, n), ("gu", self.gu, m)):
+            if arr.shape != (size,):
+                raise ValueError(f"Bounds.{name}: expected shape ({size},), got {arr.shape}")
+        if np.any(self.xl > self.xu):
+            raise ValueError(f"Bounds.xl/xu: lower bound above upper bound at indices {np.nonzero(self.xl > self.xu)[0][:10]}")
+        if np.any(self.gl > self.gu):
+            raise ValueError(f"Bounds.gl/gu: lower bound above upper bound at indices {np.nonzero(self.gl > self.gu)[0][:10]}")

@@ -1,0 +1,1 @@
+"""What people look at: solutions on disk, reports, figures, animations, the command line."""

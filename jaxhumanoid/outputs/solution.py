@@ -1,0 +1,131 @@
+"""A solved trajectory: arrays on the time grid, per-stage solver statistics, save and load.
+
+Shapes (N intervals, N + 1 nodes; joints O_1..O_5 = knee, hip, shoulder, elbow, hand):
+
+    t            (N+1,)      node times (s)
+    q, qd        (N+1, 5)    joint angles (rad) and rates (rad/s) at the nodes
+    u            (N, 5)      joint torques (N m), constant on each interval
+    f_contact    (N, 5, 2)   contact forces (f_t, f_n) at O_1..O_5 at the interval midpoints (N);
+                             zero at joints without a modelled contact force
+    gaps         (N+1, 5)    heights y of O_1..O_5 above the ground at the nodes (m)
+    foot_reaction (N, 2)     ground reaction on the foot (f_t0, f_n0) at the midpoints (N)
+    foot_margins (N, 5)      the five products of (5), >= 0 when the foot stays steady
+    warm_start   optional dict {t, q}: the stage-1 solution interpolated onto t (2S only)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import pathlib
+from typing import Any
+
+import numpy as np
+
+ARRAY_FIELDS = ("t", "q", "qd", "u", "f_contact", "gaps", "foot_reaction", "foot_margins")
+
+
+@dataclasses.dataclass
+class StageStats:
+    """One NLP solve of a strategy (stage 1 = pseudo-static, stage 2 = dynamic, or the only one)."""
+
+    name: str
+    status: str
+    success: bool
+    iterations: int
+    solve_time_s: float
+    compile_time_s: float
+    objective: float
+    max_constraint_violation: float
+    n_variables: int
+    n_constraints: int
+
+
+@dataclasses.dataclass
+class Solution:
+    task: str
+    scheme: str
+    solver: str
+    t: np.ndarray
+    q: np.ndarray
+    qd: np.ndarray
+    u: np.ndarray
+    f_contact: np.ndarray
+    gaps: np.ndarray
+    foot_reaction: np.ndarray
+    foot_margins: np.ndarray
+    objective: float
+    objective_terms: dict[str, float]
+    stages: list[StageStats]
+    active: tuple[int, ...]
+    geometry: dict[str, Any]
+    warm_start: dict[str, np.ndarray] | None = None
+
+    @property
+    def success(self) -> bool:
+        return all(s.success for s in self.stages)
+
+    @property
+    def status(self) -> str:
+        return self.stages[-1].status
+
+    def report(self) -> dict[str, Any]:
+        """The report.json record (the fields the CLI and table2 promise)."""
+        last = self.stages[-1]
+        return {
+            "task": self.task,
+            "scheme": self.scheme,
+            "solver": self.solver,
+            "success": bool(self.success),
+            "status": last.status,
+            "stage_status": [s.status for s in self.stages],
+            "iterations": [int(s.iterations) for s in self.stages],
+            "solve_time_s": [float(s.solve_time_s) for s in self.stages],
+            "compile_time_s": float(sum(s.compile_time_s for s in self.stages)),
+            "objective": float(self.objective),
+            "objective_terms": {k: float(v) for k, v in self.objective_terms.items()},
+            "n_variables": int(last.n_variables),
+            "n_constraints": int(last.n_constraints),
+            "max_constraint_violation": float(last.max_constraint_violation),
+            "N": int(self.t.size - 1),
+            "T": float(self.t[-1] - self.t[0]),
+            "active_contacts": list(self.active),
+            "stages": [dataclasses.asdict(s) for s in self.stages],
+        }
+
+    def save(self, out_dir) -> pathlib.Path:
+        """Write ``solution.npz`` and ``report.json`` into ``out_dir`` (created if missing)."""
+        out = pathlib.Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        arrays = {k: np.asarray(getattr(self, k)) for k in ARRAY_FIELDS}
+        if self.warm_start is not None:
+            arrays.update({f"warm_start_{k}": np.asarray(v) for k, v in self.warm_start.items()})
+        np.savez(out / "solution.npz", **arrays)
+        meta = self.report()
+        meta["geometry"] = {k: np.asarray(v).tolist() for k, v in self.geometry.items()}
+        (out / "report.json").write_text(json.dumps(meta, indent=2) + "\n")
+        return out
+
+    @classmethod
+    def load(cls, out_dir) -> "Solution":
+        out = pathlib.Path(out_dir)
+        report_path, npz_path = out / "report.json", out / "solution.npz"
+        for path in (report_path, npz_path):
+            if not path.is_file():
+                raise FileNotFoundError(f"{path} not found: expected a directory written by Solution.save")
+        meta = json.loads(report_path.read_text())
+        with np.load(npz_path) as data:
+            arrays = {k: data[k] for k in ARRAY_FIELDS}
+            warm = {k[len("warm_start_"):]: data[k] for k in data.files if k.startswith("warm_start_")} or None
+        return cls(
+            task=meta["task"],
+            scheme=meta["scheme"],
+            solver=meta["solver"],
+            objective=meta["objective"],
+            objective_terms=meta["objective_terms"],
+            stages=[StageStats(**s) for s in meta["stages"]],
+            active=tuple(meta["active_contacts"]),
+            geometry={k: np.asarray(v) for k, v in meta["geometry"].items()},
+            warm_start=warm,
+            **arrays,
+        )

@@ -1,0 +1,1 @@
+"""Solution strategies: one stage (1S) and two stages (2S)."""
