@@ -1,0 +1,130 @@
+"""User-facing drivers: compile (cached), run, unscale, and package an ``NLPResult``."""
+
+from __future__ import annotations
+
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxhumanoid.ocp.nlp import NLP, Bounds
+from jaxhumanoid.solvers.ipm.algorithm import STATUS, SUCCESS_CODES, make_ipm, unscale
+from jaxhumanoid.solvers.ipm.log import format_log, trim_history
+from jaxhumanoid.solvers.ipm.options import IPMOptions, make_options
+from jaxhumanoid.solvers.result import NLPResult, constraint_violation
+
+
+def _core(nlp: NLP, opts: IPMOptions, batched: bool):
+    """jit (and vmap) of the solver core, cached on the NLP instance per options."""
+    cache = getattr(nlp, "_ipm_cache", None)
+    if cache is None:
+        cache = {}
+        object.__setattr__(nlp, "_ipm_cache", cache)
+    key = (opts, batched)
+    if key not in cache:
+        run = make_ipm(nlp, opts)
+
+        def fn(x0, xl, xu, gl, gu, p):
+            S, P = run(x0, xl, xu, gl, gu, p)
+            x, lam, zl, zu, f = unscale(S, P)
+            return dict(x=x, lam=lam, zl=zl, zu=zu, f=f, g=S.ev.g / P.sg, grad=S.ev.grad / P.sf,
+                        jac=S.ev.jac * P.sf / P.sg[np.asarray(nlp.jac_rows)] / P.sf, status=S.status,
+                        k=S.k, hist=S.hist, resto_iters=S.resto_iters, fixed=P.fixed)
+
+        cache[key] = {"fn": jax.jit(jax.vmap(fn) if batched else fn), "compiled": {}}
+    return cache[key]
+
+
+def _check_shapes(nlp, x0, bounds):
+    if np.shape(x0) != (nlp.n,):
+        raise ValueError(f"x0 must have shape ({nlp.n},), got {np.shape(x0)}")
+    if np.shape(bounds.gl) != (nlp.m,):
+        raise ValueError(f"bounds.gl must have shape ({nlp.m},), got {np.shape(bounds.gl)}")
+
+
+def _fixed_multipliers(nlp, out, lam):
+    """Bound multipliers of fixed variables from the stationarity residual (make_parameter)."""
+    fixed = np.asarray(out["fixed"])
+    if not fixed.any():
+        return np.asarray(out["zl"]), np.asarray(out["zu"])
+    jt = np.zeros(nlp.n)
+    np.add.at(jt, np.asarray(nlp.jac_cols), np.asarray(out["jac"]) * lam[np.asarray(nlp.jac_rows)])
+    r = np.asarray(out["grad"]) + jt
+    zl = np.where(fixed, np.maximum(r, 0.0), np.asarray(out["zl"]))
+    zu = np.where(fixed, np.maximum(-r, 0.0), np.asarray(out["zu"]))
+    return zl, zu
+
+
+def _package(nlp, out, bounds, opts, solve_time, compile_time):
+    code = int(out["status"])
+    status = STATUS[code]
+    k = int(out["k"])
+    x = np.asarray(out["x"])
+    lam = np.asarray(out["lam"])
+    zl, zu = _fixed_multipliers(nlp, out, lam)
+    history = trim_history(out["hist"], k) if opts.keep_history else None
+    log = format_log(history, k, status, header=f"jaxhumanoid IPM on {nlp.name}: n={nlp.n}, m={nlp.m}") if history else None
+    if history is not None and opts.print_level > 0:
+        print(log)
+    viol = constraint_violation(np.asarray(out["g"]), x, bounds.gl, bounds.gu, bounds.xl, bounds.xu)
+    return NLPResult(x=x, lam_g=lam, z_l=zl, z_u=zu, status=status, success=code in SUCCESS_CODES,
+                     iterations=k, solve_time_s=solve_time, compile_time_s=compile_time,
+                     objective=float(out["f"]), max_constraint_violation=viol, history=history, log=log)
+
+
+def solve_ipm(nlp: NLP, p, bounds: Bounds, x0=None, options: IPMOptions | dict | None = None) -> NLPResult:
+    """Solve the NLP with the own interior-point method; warm start from ``x0`` if given.
+
+    The jitted core is compiled once per (NLP, options, argument shapes) and cached; the
+    compile time is reported in ``compile_time_s`` (0 on a cache hit).
+    """
+    opts = make_options(options)
+    x0 = np.asarray(bounds.x0 if x0 is None else x0, dtype=float)
+    _check_shapes(nlp, x0, bounds)
+    core = _core(nlp, opts, batched=False)
+    args = (jnp.asarray(x0), jnp.asarray(bounds.xl, float), jnp.asarray(bounds.xu, float),
+            jnp.asarray(bounds.gl, float), jnp.asarray(bounds.gu, float), p)
+    key = jax.tree.structure(args), tuple(jnp.shape(a) for a in jax.tree.leaves(args))
+    compile_time = 0.0
+    if key not in core["compiled"]:
+        t0 = time.perf_counter()
+        core["compiled"][key] = core["fn"].lower(*args).compile()
+        compile_time = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    out = jax.block_until_ready(core["compiled"][key](*args))
+    solve_time = time.perf_counter() - t0
+    out = jax.tree.map(np.asarray, out)
+    return _package(nlp, out, bounds, opts, solve_time, compile_time)
+
+
+def batch_solve_ipm(nlp: NLP, p_batch, bounds: Bounds, x0=None, options=None) -> list[NLPResult]:
+    """Solve a batch under ``jax.vmap``: ``p_batch`` leaves and any of x0/xl/xu/gl/gu may carry a
+    leading batch axis (others are broadcast). Converged members freeze while others iterate."""
+    opts = make_options(options)
+    leaves = jax.tree.leaves(p_batch)
+    if not leaves:
+        raise ValueError("batch_solve_ipm: p_batch must have at least one batched leaf")
+    nbatch = int(np.shape(leaves[0])[0])
+    x0 = np.asarray(bounds.x0 if x0 is None else x0, dtype=float)
+
+    def bc(a, size):
+        a = np.asarray(a, dtype=float)
+        return np.broadcast_to(a, (nbatch, size)) if a.ndim == 1 else a
+
+    arrs = [bc(x0, nlp.n), bc(bounds.xl, nlp.n), bc(bounds.xu, nlp.n), bc(bounds.gl, nlp.m), bc(bounds.gu, nlp.m)]
+    core = _core(nlp, opts, batched=True)
+    args = tuple(jnp.asarray(a) for a in arrs) + (p_batch,)
+    t0 = time.perf_counter()
+    compiled = core["fn"].lower(*args).compile()
+    compile_time = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    out = jax.block_until_ready(compiled(*args))
+    solve_time = time.perf_counter() - t0
+    out = jax.tree.map(np.asarray, out)
+    results = []
+    for b in range(nbatch):
+        ob = jax.tree.map(lambda a: a[b], out)
+        bb = Bounds(arrs[0][b], arrs[1][b], arrs[2][b], arrs[3][b], arrs[4][b])
+        results.append(_package(nlp, ob, bb, opts, solve_time, compile_time))
+    return results

@@ -1,0 +1,158 @@
+"""Options of the interior-point method, with IPOPT's names and defaults.
+
+References are to Waechter & Biegler (2006), "On the implementation of an interior-point filter
+line-search algorithm for large-scale nonlinear programming", Math. Program. 106:25-57 (the IPOPT
+paper). Every field is static (hashable), so an ``IPMOptions`` can be closed over by ``jit``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+
+@dataclasses.dataclass(frozen=True)
+class IPMOptions:
+    # termination (Sec. 2.1, eq. (5)) and IPOPT's unscaled tests
+    tol: float = 1e-8
+    max_iter: int = 3000
+    s_max: float = 100.0
+    constr_viol_tol: float = 1e-4
+    dual_inf_tol: float = 1.0
+    compl_inf_tol: float = 1e-4
+    acceptable_tol: float = 1e-6
+    acceptable_iter: int = 15
+    acceptable_constr_viol_tol: float = 1e-2
+    acceptable_dual_inf_tol: float = 1e10
+    acceptable_compl_inf_tol: float = 1e-2
+    # barrier parameter update (Sec. 2.1, eq. (7)): monotone Fiacco-McCormick
+    mu_init: float = 0.1
+    kappa_eps: float = 10.0
+    kappa_mu: float = 0.2
+    theta_mu: float = 1.5
+    tau_min: float = 0.99
+    # initial point (Sec. 3.6)
+    bound_push: float = 1e-2
+    bound_frac: float = 1e-2
+    slack_bound_push: float = 1e-2
+    slack_bound_frac: float = 1e-2
+    bound_mult_init_val: float = 1.0
+    constr_mult_init_max: float = 1e3
+    # gradient-based scaling (Sec. 3.8)
+    nlp_scaling_method: str = "gradient-based"
+    nlp_scaling_max_gradient: float = 100.0
+    nlp_scaling_min_value: float = 1e-8
+    obj_scaling_factor: float = 1.0
+    # bound-multiplier safeguard (eq. (16))
+    kappa_sigma: float = 1e10
+    # filter line search (Sec. 2.3, eqs. (18)-(22))
+    theta_max_fact: float = 1e4
+    theta_min_fact: float = 1e-4
+    gamma_theta: float = 1e-5
+    gamma_phi: float = 1e-8
+    delta: float = 1.0
+    s_theta: float = 1.1
+    s_phi: float = 2.3
+    eta_phi: float = 1e-8
+    alpha_min_frac: float = 0.05
+    max_ls_trials: int = 40
+    filter_size: int = 256
+    # second-order correction (Sec. 2.4)
+    max_soc: int = 4
+    kappa_soc: float = 0.99
+    # inertia correction (Sec. 3.1, Algorithm IC)
+    first_hessian_perturbation: float = 1e-4
+    min_hessian_perturbation: float = 1e-20
+    max_hessian_perturbation: float = 1e20
+    perturb_inc_fact_first: float = 100.0
+    perturb_inc_fact: float = 8.0
+    perturb_dec_fact: float = 1.0 / 3.0
+    jacobian_regularization_value: float = 1e-8
+    jacobian_regularization_exponent: float = 0.25
+    max_inertia_trials: int = 60
+    # linear algebra
+    iterative_refinement_steps: int = 1
+    # feasibility restoration (Sec. 3.3, simplified: see algorithm.restoration)
+    max_resto_iter: int = 200
+    kappa_resto: float = 0.9
+    required_infeasibility_reduction: float = 0.9
+    # output
+    print_level: int = 0
+    keep_history: bool = True
+
+    def __post_init__(self):
+        validate(self)
+
+    def replace(self, **kw: Any) -> "IPMOptions":
+        return dataclasses.replace(self, **kw)
+
+
+_POSITIVE = (
+    "tol", "s_max", "constr_viol_tol", "dual_inf_tol", "compl_inf_tol", "acceptable_tol",
+    "acceptable_constr_viol_tol", "acceptable_dual_inf_tol", "acceptable_compl_inf_tol", "mu_init",
+    "kappa_eps", "bound_push", "bound_frac", "slack_bound_push", "slack_bound_frac",
+    "bound_mult_init_val", "nlp_scaling_max_gradient", "nlp_scaling_min_value", "kappa_sigma",
+    "theta_max_fact", "theta_min_fact", "gamma_theta", "gamma_phi", "delta", "eta_phi",
+    "alpha_min_frac", "first_hessian_perturbation", "min_hessian_perturbation",
+    "max_hessian_perturbation", "perturb_inc_fact_first", "perturb_inc_fact",
+    "jacobian_regularization_value", "obj_scaling_factor",
+)
+_OPEN_UNIT = ("kappa_mu", "tau_min", "perturb_dec_fact", "kappa_soc", "kappa_resto",
+              "required_infeasibility_reduction")
+_NONNEG_INT = ("acceptable_iter", "max_soc", "iterative_refinement_steps", "print_level")
+_POS_INT = ("max_iter", "max_ls_trials", "filter_size", "max_inertia_trials", "max_resto_iter")
+SCALING_METHODS = ("gradient-based", "none")
+
+
+def validate(o: IPMOptions) -> None:
+    """Raise ValueError naming the offending option and its allowed values."""
+    for name in _POSITIVE:
+        v = getattr(o, name)
+        if not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+            raise ValueError(f"IPMOptions.{name} must be a finite number > 0, got {v!r}")
+    for name in _OPEN_UNIT:
+        v = getattr(o, name)
+        if not isinstance(v, (int, float)) or not 0.0 < v < 1.0:
+            raise ValueError(f"IPMOptions.{name} must lie in the open interval (0, 1), got {v!r}")
+    for name in _NONNEG_INT:
+        v = getattr(o, name)
+        if not isinstance(v, int) or isinstance(v, bool) or v < 0:
+            raise ValueError(f"IPMOptions.{name} must be an integer >= 0, got {v!r}")
+    for name in _POS_INT:
+        v = getattr(o, name)
+        if not isinstance(v, int) or isinstance(v, bool) or v < 1:
+            raise ValueError(f"IPMOptions.{name} must be an integer >= 1, got {v!r}")
+    if not 1.0 < o.theta_mu < 2.0:
+        raise ValueError(f"IPMOptions.theta_mu must lie in (1, 2), got {o.theta_mu!r}")
+    if not o.s_theta > 1.0:
+        raise ValueError(f"IPMOptions.s_theta must be > 1, got {o.s_theta!r}")
+    if not o.s_phi > 1.0:
+        raise ValueError(f"IPMOptions.s_phi must be > 1, got {o.s_phi!r}")
+    if not 0.0 < o.jacobian_regularization_exponent < 1.0:
+        raise ValueError("IPMOptions.jacobian_regularization_exponent must lie in (0, 1), "
+                         f"got {o.jacobian_regularization_exponent!r}")
+    if o.bound_frac > 0.5 or o.slack_bound_frac > 0.5:
+        raise ValueError("IPMOptions.bound_frac and slack_bound_frac must be <= 0.5")
+    if o.nlp_scaling_method not in SCALING_METHODS:
+        raise ValueError(f"IPMOptions.nlp_scaling_method must be one of {SCALING_METHODS}, "
+                         f"got {o.nlp_scaling_method!r}")
+    if o.min_hessian_perturbation >= o.max_hessian_perturbation:
+        raise ValueError("IPMOptions.min_hessian_perturbation must be < max_hessian_perturbation")
+    if not isinstance(o.keep_history, bool):
+        raise ValueError(f"IPMOptions.keep_history must be True or False, got {o.keep_history!r}")
+
+
+def make_options(options: IPMOptions | dict | None) -> IPMOptions:
+    """Accept None, an IPMOptions or a dict of IPOPT-style option names."""
+    if options is None:
+        return IPMOptions()
+    if isinstance(options, IPMOptions):
+        return options
+    if isinstance(options, dict):
+        names = {f.name for f in dataclasses.fields(IPMOptions)}
+        unknown = sorted(set(options) - names)
+        if unknown:
+            raise ValueError(f"unknown IPM option(s) {unknown}; allowed: {sorted(names)}")
+        return IPMOptions(**options)
+    raise ValueError(f"options must be None, a dict or an IPMOptions, got {type(options).__name__}")

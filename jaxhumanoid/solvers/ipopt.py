@@ -1,0 +1,180 @@
+"""IPOPT through cyipopt, with exact sparse Jacobian and Hessian from JAX.
+
+IPOPT's options pass straight through (``options={"tol": 1e-9, ...}``). The iteration log is
+written by IPOPT to a file and read back into ``NLPResult.log`` (and echoed when ``verbose``);
+per-iteration statistics come from the ``intermediate`` callback.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import time
+
+import jax
+import numpy as np
+
+from jaxhumanoid.ocp.nlp import NLP, Bounds
+from jaxhumanoid.solvers.result import NLPResult, constraint_violation
+
+# IPOPT's ApplicationReturnStatus codes.
+STATUS = {
+    0: "Solve_Succeeded",
+    1: "Solved_To_Acceptable_Level",
+    2: "Infeasible_Problem_Detected",
+    3: "Search_Direction_Becomes_Too_Small",
+    4: "Diverging_Iterates",
+    5: "User_Requested_Stop",
+    6: "Feasible_Point_Found",
+    -1: "Maximum_Iterations_Exceeded",
+    -2: "Restoration_Failed",
+    -3: "Error_In_Step_Computation",
+    -4: "Maximum_CpuTime_Exceeded",
+    -5: "Maximum_WallTime_Exceeded",
+    -10: "Not_Enough_Degrees_Of_Freedom",
+    -11: "Invalid_Problem_Definition",
+    -12: "Invalid_Option",
+    -13: "Invalid_Number_Detected",
+    -100: "Unrecoverable_Exception",
+    -101: "NonIpopt_Exception_Thrown",
+    -102: "Insufficient_Memory",
+    -199: "Internal_Error",
+}
+SUCCESS = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
+
+DEFAULT_OPTIONS = {
+    "tol": 1e-8,
+    "max_iter": 3000,
+    "mu_strategy": "monotone",
+    "linear_solver": "mumps",
+    "hessian_approximation": "exact",
+    "print_level": 0,
+    "file_print_level": 5,
+    "sb": "yes",
+}
+_INF = 2e19  # IPOPT's "no bound" is anything beyond nlp_lower/upper_bound_inf (1e19)
+
+
+class _Callbacks:
+    """The object cyipopt calls; JAX functions are jitted once and fed numpy arrays."""
+
+    def __init__(self, nlp: NLP, p):
+        self.p = p
+        self._f = jax.jit(nlp.f)
+        self._g = jax.jit(nlp.g)
+        self._grad = jax.jit(nlp.grad)
+        self._jac = jax.jit(nlp.jac_values)
+        self._hess = jax.jit(nlp.hess_values)
+        self._jac_structure = (nlp.jac_rows, nlp.jac_cols)
+        self._hess_structure = (nlp.hess_rows, nlp.hess_cols)
+        self.history: dict[str, list] = {k: [] for k in ("objective", "inf_pr", "inf_du", "mu", "d_norm", "regularization", "alpha_du", "alpha_pr", "ls_trials")}
+        self.eval_time = 0.0
+
+    def warm_up(self, x, m: int) -> float:
+        """Compile every callback once; returns the compile time."""
+        t0 = time.perf_counter()
+        lam = np.ones(m)
+        for out in (self._f(x, self.p), self._g(x, self.p), self._grad(x, self.p), self._jac(x, self.p), self._hess(x, lam, 1.0, self.p)):
+            jax.block_until_ready(out)
+        return time.perf_counter() - t0
+
+    def _timed(self, fn, *args):
+        t0 = time.perf_counter()
+        out = np.asarray(fn(*args))
+        self.eval_time += time.perf_counter() - t0
+        return out
+
+    def objective(self, x):
+        return float(self._timed(self._f, x, self.p))
+
+    def gradient(self, x):
+        return self._timed(self._grad, x, self.p)
+
+    def constraints(self, x):
+        return self._timed(self._g, x, self.p)
+
+    def jacobian(self, x):
+        return self._timed(self._jac, x, self.p)
+
+    def jacobianstructure(self):
+        return self._jac_structure
+
+    def hessian(self, x, lagrange, obj_factor):
+        return self._timed(self._hess, x, lagrange, obj_factor, self.p)
+
+    def hessianstructure(self):
+        return self._hess_structure
+
+    def intermediate(self, alg_mod, iter_count, obj_value, inf_pr, inf_du, mu, d_norm, regularization_size, alpha_du, alpha_pr, ls_trials):
+        for key, val in zip(self.history, (obj_value, inf_pr, inf_du, mu, d_norm, regularization_size, alpha_du, alpha_pr, ls_trials)):
+            self.history[key].append(val)
+        return True
+
+
+def _finite_or_inf(a, sign):
+    a = np.asarray(a, dtype=float)
+    return np.where(np.isfinite(a), a, sign * _INF)
+
+
+def solve_ipopt(nlp: NLP, p, bounds: Bounds, x0=None, options: dict | None = None, verbose: bool = False) -> NLPResult:
+    """Solve ``nlp`` at parameters ``p`` with IPOPT (exact Hessian, MUMPS by default).
+
+    ``options`` are IPOPT options, merged over ``DEFAULT_OPTIONS``; ``verbose`` echoes IPOPT's
+    iteration log. The returned ``NLPResult.success`` is True for Solve_Succeeded and
+    Solved_To_Acceptable_Level only.
+    """
+    import cyipopt  # deferred: importing the package should not load IPOPT
+
+    opts = dict(DEFAULT_OPTIONS)
+    opts.update(options or {})
+    x0 = np.asarray(bounds.x0 if x0 is None else x0, dtype=float)
+    if x0.shape != (nlp.n,):
+        raise ValueError(f"x0: expected shape ({nlp.n},), got {x0.shape}")
+    if not np.all(np.isfinite(x0)):
+        raise ValueError("x0: contains NaN or inf")
+    cb = _Callbacks(nlp, p)
+    compile_time = cb.warm_up(x0, nlp.m)
+    problem = cyipopt.Problem(
+        n=nlp.n,
+        m=nlp.m,
+        problem_obj=cb,
+        lb=_finite_or_inf(bounds.xl, -1),
+        ub=_finite_or_inf(bounds.xu, 1),
+        cl=_finite_or_inf(bounds.gl, -1),
+        cu=_finite_or_inf(bounds.gu, 1),
+    )
+    fd, log_path = tempfile.mkstemp(prefix="ipopt_", suffix=".log")
+    os.close(fd)
+    opts.setdefault("output_file", log_path)
+    try:
+        for key, val in opts.items():
+            try:
+                problem.add_option(key, val)
+            except TypeError as err:
+                raise ValueError(f"options[{key!r}]: IPOPT rejected value {val!r} ({err})") from err
+        t0 = time.perf_counter()
+        x, info = problem.solve(x0)
+        solve_time = time.perf_counter() - t0
+        log = open(opts["output_file"]).read() if os.path.exists(opts["output_file"]) else ""
+    finally:
+        if os.path.exists(log_path):
+            os.remove(log_path)
+    if verbose:
+        print(log)
+    status = STATUS.get(int(info["status"]), f"Unknown_Status_{info['status']}")
+    g_val = np.asarray(info["g"])
+    return NLPResult(
+        x=np.asarray(x),
+        lam_g=np.asarray(info["mult_g"]),
+        z_l=np.asarray(info["mult_x_L"]),
+        z_u=np.asarray(info["mult_x_U"]),
+        status=status,
+        success=status in SUCCESS,
+        iterations=max(len(cb.history["objective"]) - 1, 0),
+        solve_time_s=solve_time,
+        compile_time_s=compile_time,
+        objective=float(info["obj_val"]),
+        max_constraint_violation=constraint_violation(g_val, x, bounds.gl, bounds.gu, bounds.xl, bounds.xu),
+        history={**{k: np.asarray(v) for k, v in cb.history.items()}, "eval_time_s": cb.eval_time},
+        log=log,
+    )

@@ -1,0 +1,192 @@
+"""One-stage (1S) and two-stage (2S) strategies (Sec. III-A.3), producing a ``Solution``.
+
+2S: stage 1 solves the pseudo-static problem (8) on a coarse grid (N1 = 30) with the relaxed
+contact law; its primal solution, linearly interpolated onto the fine grid, warm-starts stage 2,
+the full dynamic problem (6) with the nominal law. Only primal variables are passed on (as in the
+paper); the barrier parameter of stage 2 is an IPOPT option (``stage2_options``).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxhumanoid.model import contact as ct
+from jaxhumanoid.model import foot as ft
+from jaxhumanoid.model import kinematics as kin
+from jaxhumanoid.model.params import ContactParams
+from jaxhumanoid.ocp import transcription as tr
+from jaxhumanoid.ocp.scheme import parse_scheme
+from jaxhumanoid.ocp.tasks import get_task
+from jaxhumanoid.outputs.solution import Solution, StageStats
+from jaxhumanoid.solvers.result import NLPResult
+from jaxhumanoid.strategy.problem import Problem, build_problem
+
+SOLVERS = ("ipopt", "ipm", "casadi")
+STAGE1_N = 30
+
+
+def _inverse_normal_force(contact: ContactParams, f):
+    """y with f_n(y) = f for the law (3): y = -(f0/kappa) log2(2^(f/f0) - 1)."""
+    return -(contact.f0 / contact.kappa) * np.log2(np.expm1(f * np.log(2.0) / contact.f0))
+
+
+def reseat_for_contact(p: tr.OCPParams, q, active, new_contact: ContactParams, iters: int = 8):
+    """Shift posture q by the least joint motion so that ``new_contact`` carries the same normal
+    forces at the loaded contacts as ``p.contact`` does at q (hence the same equilibrium torques
+    and foot reaction: the start posture keeps its steady-foot margins under the new law).
+
+    Returns (q_new, max |gap change| in m). Contacts carrying < 1 N are left alone.
+    """
+    q = np.asarray(q, dtype=float)
+    idx = np.asarray(active, dtype=int) - 1
+    gaps = np.asarray(kin.contact_gaps(p.model, p.foot, q))[idx]
+    f_nom = np.asarray(ct.normal_force(p.contact, gaps))
+    loaded = f_nom > 1.0
+    if not np.any(loaded):
+        return q, 0.0
+    target = _inverse_normal_force(new_contact, f_nom[loaded])
+    rows = idx[loaded]
+    jac = jax.jacfwd(lambda qq: kin.contact_gaps(p.model, p.foot, qq))
+    q_new = q.copy()
+    for _ in range(iters):
+        y = np.asarray(kin.contact_gaps(p.model, p.foot, q_new))[rows]
+        J = np.asarray(jac(jnp.asarray(q_new)))[rows]
+        q_new = q_new + np.linalg.lstsq(J, target - y, rcond=None)[0]
+    return q_new, float(np.max(np.abs(target - gaps[loaded])))
+
+
+def _run_solver(solver: str, problem: Problem, x0, options, verbose) -> NLPResult:
+    if solver == "ipopt":
+        from jaxhumanoid.solvers.ipopt import solve_ipopt
+
+        return solve_ipopt(problem.nlp, problem.p, problem.bounds, x0=x0, options=options, verbose=verbose)
+    if solver == "ipm":
+        from jaxhumanoid.solvers.ipm import solve_ipm
+
+        return solve_ipm(problem.nlp, problem.p, problem.bounds, x0=x0, options=options)
+    if solver == "casadi":
+        from jaxhumanoid.solvers.casadi_backend import solve_casadi
+
+        return solve_casadi(problem, x0=x0, options=options, verbose=verbose)
+    raise ValueError(f"solver: {solver!r} not in {SOLVERS}")
+
+
+def interpolate_full(Z_coarse: np.ndarray, T: float, layout_fine: tr.Layout) -> np.ndarray:
+    """Linear interpolation of a coarse full layout onto a fine grid (same horizon).
+
+    Node quantities (q, qd) are interpolated at nodes; interval quantities (u, f) at interval
+    midpoints. Both layouts must carry the same per-stage variables.
+    """
+    Nc = Z_coarse.shape[0] - 1
+    Nf = layout_fine.N
+    tc, tf = np.linspace(0, T, Nc + 1), np.linspace(0, T, Nf + 1)
+    mc, mf = 0.5 * (tc[:-1] + tc[1:]), 0.5 * (tf[:-1] + tf[1:])
+    Z = np.zeros((Nf + 1, layout_fine.s))
+    for j in range(10):
+        Z[:, j] = np.interp(tf, tc, Z_coarse[:, j])
+    for j in range(10, layout_fine.s):
+        Z[:-1, j] = np.interp(mf, mc, Z_coarse[:-1, j])
+    return Z
+
+
+def _stage_stats(name: str, problem: Problem, res: NLPResult) -> StageStats:
+    return StageStats(
+        name=name,
+        status=res.status,
+        success=bool(res.success),
+        iterations=int(res.iterations),
+        solve_time_s=float(res.solve_time_s),
+        compile_time_s=float(res.compile_time_s),
+        objective=float(res.objective),
+        max_constraint_violation=float(res.max_constraint_violation),
+        n_variables=int(problem.nlp.n),
+        n_constraints=int(problem.nlp.m),
+    )
+
+
+def make_solution(problem: Problem, x, stages, solver: str, warm_start=None) -> Solution:
+    """Trajectory arrays and derived quantities (forces, gaps, foot reaction) of a solution x."""
+    layout, p = problem.layout, problem.p
+    Z = problem.full(x)
+    sl = layout.stage_slices()
+    N, h = layout.N, float(p.T) / layout.N
+    q, qd, u = Z[:, sl["q"]], Z[:, sl["qd"]], Z[:-1, sl["u"]]
+    qbar, qdbar = 0.5 * (q[:-1] + q[1:]), 0.5 * (qd[:-1] + qd[1:])
+    if layout.pseudo_static:
+        qdbar = np.diff(q, axis=0) / h
+    idx = np.asarray(layout.active) - 1
+    forces = jax.vmap(lambda a, b: ct.contact_forces(p.model, p.foot, p.contact, a, b, layout.active))(qbar, qdbar)
+    if layout.augmented:
+        forces = Z[:-1, sl["f"]].reshape(N, -1, 2)
+    f_contact = np.zeros((N, 5, 2))
+    f_contact[:, idx] = np.asarray(forces)
+    qdd = np.zeros_like(qbar) if layout.pseudo_static else np.diff(qd, axis=0) / h
+    qd_used = np.zeros_like(qbar) if layout.pseudo_static else qdbar
+    f_c0 = np.asarray(jax.vmap(lambda a, b, c, f: ft.foot_reaction(p.model, a, b, c, f))(qbar, qd_used, qdd, jnp.asarray(forces)))
+    margins = np.asarray(jax.vmap(lambda f, u1: ft.foot_constraints(p.foot, p.contact.mu, f, u1))(f_c0, u[:, 0]))
+    gaps = np.asarray(jax.vmap(lambda qq: kin.contact_gaps(p.model, p.foot, qq))(q))
+    terms = {k: float(v) for k, v in tr.objective_terms(layout, jnp.asarray(Z), p).items()}
+    return Solution(
+        task=problem.task.key,
+        scheme=str(problem.scheme),
+        solver=solver,
+        t=np.linspace(0.0, float(p.T), N + 1),
+        q=q,
+        qd=qd,
+        u=u,
+        f_contact=f_contact,
+        gaps=gaps,
+        foot_reaction=f_c0,
+        foot_margins=margins,
+        objective=float(sum(terms.values())),
+        objective_terms=terms,
+        stages=stages,
+        active=tuple(layout.active),
+        geometry={
+            "a": np.asarray(p.model.a),
+            "ankle_height": float(p.foot.ankle_height),
+            "a0f": float(p.foot.a0f),
+            "a0b": float(p.foot.a0b),
+            "mu": float(p.contact.mu),
+        },
+        warm_start=warm_start,
+    )
+
+
+def solve(
+    task="T1",
+    scheme="A,F+C,2S",
+    solver: str = "ipopt",
+    N: int = 100,
+    T: float = 5.0,
+    N1: int = STAGE1_N,
+    options: dict | None = None,
+    stage1_options: dict | None = None,
+    stage2_options: dict | None = None,
+    verbose: bool = False,
+) -> Solution:
+    """Solve one task with one strategy. ``options`` apply to every stage; ``stage1_options`` and
+    ``stage2_options`` override them per stage (2S)."""
+    task = get_task(task)
+    scheme = parse_scheme(scheme)
+    if solver not in SOLVERS:
+        raise ValueError(f"solver: {solver!r} not in {SOLVERS}")
+    final = build_problem(task, scheme, N=N, T=T)
+    stages, warm = [], None
+    x0 = final.bounds.x0
+    if scheme.stages == 2:
+        relaxed = ContactParams.relaxed()
+        q_start1, _ = reseat_for_contact(final.p, final.p.q_start, final.layout.active, relaxed)
+        first = build_problem(task, scheme, N=N1, T=T, pseudo_static=True, contact=relaxed, q_start=q_start1)
+        res1 = _run_solver(solver, first, first.bounds.x0, {**(options or {}), **(stage1_options or {})}, verbose)
+        stages.append(_stage_stats("stage 1 (pseudo-static)", first, res1))
+        Z1 = first.full(res1.x)
+        Zf = interpolate_full(Z1, T, final.layout)
+        warm = {"t": np.linspace(0.0, T, N + 1), "q": Zf[:, 0:5]}
+        x0 = np.clip(np.asarray(tr.free_from_full(final.layout, Zf)), final.bounds.xl, final.bounds.xu)
+    res = _run_solver(solver, final, x0, {**(options or {}), **(stage2_options or {})}, verbose)
+    stages.append(_stage_stats("stage 2 (dynamic)" if scheme.stages == 2 else "single stage", final, res))
+    return make_solution(final, res.x, stages, solver, warm_start=warm)
+

@@ -1,0 +1,98 @@
+"""Block-tridiagonal KKT solve and inertia vs scipy.sparse direct solve and dense eigvalsh."""
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+import jaxhumanoid  # noqa: F401  (float64)
+import jax.numpy as jnp
+
+from jaxhumanoid.solvers.ipm import kkt
+
+
+def random_staged_pattern(rng, S, nx, nc):
+    """Variables/constraints per stage, Jacobian coupling stages k and k+1, Hessian k,k+1."""
+    var_stage = np.repeat(np.arange(S), nx)
+    con_stage = np.repeat(np.arange(S - 1), nc) if S > 1 else np.repeat([0], nc)
+    # shuffle the global numbering so stage ordering is not the identity permutation
+    n, m = var_stage.size, con_stage.size
+    pv = rng.permutation(n)
+    pc = rng.permutation(m)
+    var_stage = var_stage[pv]
+    con_stage = con_stage[pc]
+    jr, jc = [], []
+    for j in range(m):
+        k = con_stage[j]
+        cand = np.nonzero((var_stage == k) | (var_stage == k + 1))[0]
+        for i in rng.choice(cand, size=min(len(cand), 5), replace=False):
+            jr.append(j)
+            jc.append(i)
+    hr, hc = [], []
+    for i in range(n):
+        hr.append(i)
+        hc.append(i)
+        cand = np.nonzero(np.abs(var_stage - var_stage[i]) <= 1)[0]
+        for i2 in rng.choice(cand, size=min(len(cand), 3), replace=False):
+            r, c = max(i, i2), min(i, i2)
+            if r != c:
+                hr.append(r)
+                hc.append(c)
+    h = np.unique(np.stack([hr, hc], 1), axis=0)
+    jj = np.unique(np.stack([jr, jc], 1), axis=0)
+    return n, m, var_stage, con_stage, h[:, 0], h[:, 1], jj[:, 0], jj[:, 1]
+
+
+def sparse_kkt(n, m, hr, hc, hv, jr, jc, jv, dx, dc):
+    W = sp.coo_matrix((hv, (hr, hc)), shape=(n, n)).tocsr()
+    W = W + sp.triu(W.T, k=1) + sp.diags(dx)
+    J = sp.coo_matrix((jv, (jr, jc)), shape=(m, n)).tocsr()
+    return sp.bmat([[W, J.T], [J, sp.diags(dc)]]).tocsc()
+
+
+@pytest.mark.parametrize("S,nx,nc,shift", [(1, 6, 3, 0.0), (5, 4, 3, 0.0), (12, 5, 4, 3.0)])
+def test_block_tridiagonal_solve_and_inertia(S, nx, nc, shift):
+    rng = np.random.default_rng(S * 100 + nx)
+    n, m, vs, cs, hr, hc, jr, jc = random_staged_pattern(rng, S, nx, nc)
+    st = kkt.build_structure(n, m, vs, cs, hr, hc, jr, jc)
+    assert st.S == S and st.size >= n + m
+    hv = rng.standard_normal(hr.size)
+    jv = rng.standard_normal(jr.size)
+    dx = rng.uniform(0.0, 1.0, n) + shift      # indefinite W when shift == 0
+    dc = -rng.uniform(0.0, 1e-3, m)
+    A, B = kkt.assemble(st, jnp.asarray(hv), jnp.asarray(jv), jnp.asarray(dx), jnp.asarray(dc))
+    fac = kkt.factor(st, A, B)
+    K = sparse_kkt(n, m, hr, hc, hv, jr, jc, jv, dx, dc)
+    ev = np.linalg.eigvalsh(K.toarray())
+    assert int(fac.npos) == int(np.sum(ev > 0))
+    assert int(fac.nneg) == int(np.sum(ev < 0))
+    assert int(fac.nzero) == 0
+    rx, rc = rng.standard_normal(n), rng.standard_normal(m)
+    ux, uc = kkt.solve(st, fac, A, B, jnp.asarray(rx), jnp.asarray(rc))
+    ref = spla.spsolve(K, np.concatenate([rx, rc]))
+    np.testing.assert_allclose(np.concatenate([ux, uc]), ref, rtol=1e-8, atol=1e-8)
+    # the dense stage-ordered matrix is a symmetric permutation of K, padding aside
+    Kd = kkt.dense_matrix(st, A, B)
+    perm = np.concatenate([st.var_pos, st.con_pos])
+    np.testing.assert_allclose(Kd[np.ix_(perm, perm)], K.toarray(), atol=1e-14)
+
+
+def test_singular_kkt_reports_zero_eigenvalue():
+    # two identical equality-constraint rows, no dual regularisation: K is singular
+    n, m = 3, 2
+    st = kkt.build_structure(n, m, np.zeros(3), np.zeros(2), np.arange(3), np.arange(3),
+                             np.array([0, 0, 1, 1]), np.array([0, 1, 0, 1]))
+    A, B = kkt.assemble(st, jnp.ones(3), jnp.array([1.0, 2.0, 1.0, 2.0]), jnp.zeros(3), jnp.zeros(2))
+    fac = kkt.factor(st, A, B)
+    assert int(fac.nzero) >= 1
+    assert not bool(kkt.inertia_ok(st, fac))
+    A, B = kkt.assemble(st, jnp.ones(3), jnp.array([1.0, 2.0, 1.0, 2.0]), jnp.zeros(3),
+                        -1e-8 * jnp.ones(2))
+    fac = kkt.factor(st, A, B)
+    assert bool(kkt.inertia_ok(st, fac))
+
+
+def test_structure_rejects_non_tridiagonal_coupling():
+    with pytest.raises(ValueError, match="block-tridiagonal"):
+        kkt.build_structure(3, 1, np.array([0, 1, 2]), np.array([0]), np.arange(3), np.arange(3),
+                            np.array([0, 0]), np.array([0, 2]))
