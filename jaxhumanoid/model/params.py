@@ -24,7 +24,7 @@ def _is_concrete(x) -> bool:
 
 def _check(owner: str, name: str, value, shape: tuple, positive: bool = True, nonneg: bool = False):
     """Validate a concrete field; returns a float64 numpy array (or the value unchanged if traced)."""
-    if not _is_concrete(value) and not isinstance(value, (list, tuple)):
+    if isinstance(value, jax.core.Tracer):
         return value
     try:
         arr = np.asarray(value, dtype=np.float64)
@@ -42,10 +42,26 @@ def _check(owner: str, name: str, value, shape: tuple, positive: bool = True, no
 
 
 def _pytree(cls):
-    """Frozen dataclass whose fields are all pytree leaves."""
+    """Frozen dataclass whose fields are all pytree leaves.
+
+    Unflattening bypasses ``__init__`` so that JAX can rebuild the class around tracers and
+    cotangents (a gradient with a negative entry is not an invalid model); validation runs only
+    when a user constructs one.
+    """
     cls = dataclasses.dataclass(frozen=True)(cls)
-    names = [f.name for f in dataclasses.fields(cls)]
-    return jax.tree_util.register_dataclass(cls, data_fields=names, meta_fields=[])
+    names = tuple(f.name for f in dataclasses.fields(cls))
+
+    def flatten(obj):
+        return tuple(getattr(obj, n) for n in names), None
+
+    def unflatten(_, leaves):
+        obj = object.__new__(cls)
+        for n, v in zip(names, leaves):
+            object.__setattr__(obj, n, v)
+        return obj
+
+    jax.tree_util.register_pytree_node(cls, flatten, unflatten)
+    return cls
 
 
 @_pytree

@@ -230,11 +230,11 @@ def initial_guess_full(layout: Layout, start, goal, T) -> np.ndarray:
     """Sec. II-G: q linear from start to goal, qd constant, u and f zero (fixed entries overwritten).
 
     The first interval is frozen (q_0, qd_0 = 0 and u_0 = equilibrium admit only q_1 = q_0), so
-    the interpolation starts at node 1: q_1 = q_0, then linear to the goal at node N.
+    the interpolation starts at node 1: q_1 = q_0 and qd_1 = 0, then linear to the goal at node N.
     """
     N = layout.N
     Z = np.zeros((N + 1, layout.s))
     frac = np.clip((np.arange(N + 1) - 1) / (N - 1), 0.0, 1.0)[:, None]
     Z[:, 0:5] = (1 - frac) * start + frac * goal
-    Z[1 : N - 1, 5:10] = (goal - start) / (T * (N - 1) / N)
+    Z[2 : N - 1, 5:10] = (goal - start) / (T * (N - 1) / N)
     return Z

@@ -25,6 +25,10 @@ from jaxhumanoid.strategy.problem import Problem, build_problem
 
 SOLVERS = ("ipopt", "ipm", "casadi")
 STAGE1_N = 30
+# A primal-only warm start with IPOPT's default mu_init = 0.1 throws the good stage-1 point away
+# (the first barrier steps push every variable back towards the centre of its bounds; measured on
+# T1: 3000+ iterations, no convergence). Starting the barrier at 1e-3 keeps the warm start.
+STAGE2_DEFAULTS = {"mu_init": 1e-3}
 
 
 def _inverse_normal_force(contact: ContactParams, f):
@@ -186,7 +190,8 @@ def solve(
         Zf = interpolate_full(Z1, T, final.layout)
         warm = {"t": np.linspace(0.0, T, N + 1), "q": Zf[:, 0:5]}
         x0 = np.clip(np.asarray(tr.free_from_full(final.layout, Zf)), final.bounds.xl, final.bounds.xu)
-    res = _run_solver(solver, final, x0, {**(options or {}), **(stage2_options or {})}, verbose)
+    stage2 = {**(STAGE2_DEFAULTS if scheme.stages == 2 and solver != "ipm" else {}), **(options or {}), **(stage2_options or {})}
+    res = _run_solver(solver, final, x0, stage2, verbose)
     stages.append(_stage_stats("stage 2 (dynamic)" if scheme.stages == 2 else "single stage", final, res))
     return make_solution(final, res.x, stages, solver, warm_start=warm)
 

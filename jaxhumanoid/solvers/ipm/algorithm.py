@@ -283,27 +283,36 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
 
     # ---------------------------------------------------------------- inertia correction (IC)
     def inertia_corrected_factor(P, Wvals, jac, sig_x, sig_s, dw_last, mu):
-        A, B, fac, inv_s = factorize(P, Wvals, jac, sig_x, sig_s, 0.0, 0.0)
-        ok0 = kkt.inertia_ok(st, fac)
-        dc = jnp.where(fac.nzero > 0, o.jacobian_regularization_value * mu ** o.jacobian_regularization_exponent, 0.0)
+        """Algorithm IC (Sec. 3.1): smallest delta_w (and delta_c if K is singular) giving inertia
+        (n, m, 0); a single traced factorisation inside one while_loop (first pass: no shift)."""
         dw1 = jnp.where(dw_last == 0.0, o.first_hessian_perturbation,
                         jnp.maximum(o.min_hessian_perturbation, o.perturb_dec_fact * dw_last))
+        inc = jnp.where(dw_last == 0.0, o.perturb_inc_fact_first, o.perturb_inc_fact)
+        S_, nb = st.S, st.nb
+        z3 = jnp.zeros((S_, nb, nb))
+        fac0 = kkt.Factor(z3, z3, jnp.zeros((), jnp.int64), jnp.zeros((), jnp.int64), jnp.zeros((), jnp.int64))
+        zero = jnp.zeros(())
 
         def cond(c):
-            return (~c[0]) & (c[1] <= o.max_hessian_perturbation) & (c[2] < o.max_inertia_trials)
+            ok, dw, dc, t = c[:4]
+            return (~ok) & (dw <= o.max_hessian_perturbation) & (t < o.max_inertia_trials)
 
         def body(c):
-            _, dw, t, _ = c
+            _, dw, dc, t = c[:4]
             A_, B_, fac_, inv_s_ = factorize(P, Wvals, jac, sig_x, sig_s, dw, dc)
+            fac_ = fac_._replace(npos=fac_.npos.astype(jnp.int64), nneg=fac_.nneg.astype(jnp.int64),
+                                 nzero=fac_.nzero.astype(jnp.int64))
             ok = kkt.inertia_ok(st, fac_)
-            dw_next = jnp.where(ok, dw, jnp.where(dw_last == 0.0, o.perturb_inc_fact_first, o.perturb_inc_fact) * dw)
-            return ok, dw_next, t + 1, (A_, B_, fac_, inv_s_)
+            first = t == 0
+            dc_n = jnp.where(first, jnp.where(fac_.nzero > 0, o.jacobian_regularization_value
+                                              * mu ** o.jacobian_regularization_exponent, 0.0), dc)
+            dw_n = jnp.where(ok, dw, jnp.where(first, dw1, inc * dw))
+            dc_n = jnp.where(ok, dc, dc_n)
+            return ok, dw_n, dc_n, t + 1, A_, B_, fac_, inv_s_
 
-        ok, dw, trials, (A, B, fac, inv_s) = lax.while_loop(
-            cond, body, (ok0, jnp.where(ok0, 0.0, dw1), jnp.zeros((), jnp.int32), (A, B, fac, inv_s)))
-        dw = jnp.where(ok0, 0.0, dw)
-        dc = jnp.where(ok0, 0.0, dc)
-        new_dw_last = jnp.where(ok0 | ~ok, dw_last, dw)
+        ok, dw, dc, trials, A, B, fac, inv_s = lax.while_loop(
+            cond, body, (jnp.zeros((), bool), zero, zero, jnp.zeros((), jnp.int32), z3, z3, fac0, jnp.zeros(m)))
+        new_dw_last = jnp.where(ok & (dw > 0), dw, dw_last)
         return A, B, fac, inv_s, ok, dw, dc, new_dw_last
 
     # ---------------------------------------------------------------- least-squares multipliers

@@ -1,0 +1,5 @@
+import sys
+
+from jaxhumanoid.outputs.cli import main
+
+sys.exit(main())

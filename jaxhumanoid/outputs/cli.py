@@ -1,0 +1,203 @@
+"""Command line: ``jaxhumanoid solve | table2 | animate | check`` (also ``python -m jaxhumanoid``)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import pathlib
+import sys
+import time
+
+# Table II of the paper: (iterations, seconds) per task and scheme; None = failed.
+PAPER_TABLE2 = {
+    "T1": {"E,F,1S": None, "A,F,1S": ("417", "1239"), "A,F+C,1S": ("287", "488"), "A,F+C,2S": ("272+31", "11+40=51")},
+    "T2": {"E,F,1S": None, "A,F,1S": ("242", "735"), "A,F+C,1S": ("193", "382"), "A,F+C,2S": ("93+51", "4+81=85")},
+    "T3": {"E,F,1S": ("331", "691"), "A,F,1S": ("208", "742"), "A,F+C,1S": ("694", "1262"), "A,F+C,2S": ("47+129", "2+210=212")},
+    "T4": {"E,F,1S": ("311", "520"), "A,F,1S": ("340", "1056"), "A,F+C,1S": ("360", "696"), "A,F+C,2S": ("175+27", "8+37=45")},
+}
+
+
+def enable_compilation_cache(path: str | None = None) -> str:
+    """Persistent JAX compilation cache, so a second process skips most compilation."""
+    import jax
+
+    cache = path or os.environ.get("JAXHUMANOID_CACHE", str(pathlib.Path.home() / ".cache" / "jaxhumanoid" / "jax"))
+    jax.config.update("jax_compilation_cache_dir", cache)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    return cache
+
+
+def _ipopt_options(pairs) -> dict:
+    """``--ipopt-option key=value`` pairs, numbers parsed."""
+    opts = {}
+    for pair in pairs or []:
+        if "=" not in pair:
+            raise SystemExit(f"--ipopt-option: expected key=value, got {pair!r}")
+        key, val = pair.split("=", 1)
+        for cast in (int, float):
+            try:
+                val = cast(val)
+                break
+            except ValueError:
+                continue
+        opts[key.strip()] = val
+    return opts
+
+
+def _write_figures(sol, out: pathlib.Path, animate: bool):
+    from jaxhumanoid.outputs import plots, timeline
+
+    plots.plot_solution(sol, path=out / "solution.png")
+    timeline.plot_contact_timeline(sol, path=out / "contacts.png")
+    if animate:
+        from jaxhumanoid.outputs.animation import animate as make_gif
+
+        make_gif(sol, out / "animation.gif")
+
+
+def _save(sol, out: pathlib.Path) -> dict:
+    from jaxhumanoid.outputs import timeline
+
+    sol.save(out)
+    report = json.loads((out / "report.json").read_text())
+    report["contacts"] = timeline.contact_summary(sol)
+    (out / "report.json").write_text(json.dumps(report, indent=2) + "\n")
+    return report
+
+
+def cmd_solve(args) -> int:
+    from jaxhumanoid.strategy.solve import solve
+
+    out = pathlib.Path(args.out)
+    t0 = time.perf_counter()
+    sol = solve(args.task, args.scheme, solver=args.solver, N=args.N, T=args.T, options=_ipopt_options(args.ipopt_option), verbose=args.verbose)
+    report = _save(sol, out)
+    _write_figures(sol, out, args.animate)
+    if not args.quiet:
+        its = "+".join(str(i) for i in report["iterations"])
+        times = "+".join(f"{t:.2f}" for t in report["solve_time_s"])
+        print(
+            f"{report['task']} {report['scheme']} {report['solver']}: {report['status']} "
+            f"iterations {its}, solve {times} s (compile {report['compile_time_s']:.1f} s), "
+            f"objective {report['objective']:.6g}, max violation {report['max_constraint_violation']:.1e}, "
+            f"wall {time.perf_counter() - t0:.1f} s -> {out}"
+        )
+    return 0 if sol.success else 1
+
+
+def _table2_markdown(records) -> str:
+    lines = [
+        "| task | scheme | ours: status | ours: iterations | ours: solve time (s) | paper: iterations | paper: time (s) |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for r in records:
+        paper = PAPER_TABLE2.get(r["task"], {}).get(r["scheme"])
+        p_it, p_t = paper if paper else ("failed", "failed")
+        its = "+".join(str(i) for i in r["iterations"])
+        times = "+".join(f"{t:.2f}" for t in r["solve_time_s"])
+        lines.append(f"| {r['task']} | {r['scheme']} | {r['status']} | {its} | {times} | {p_it} | {p_t} |")
+    return "\n".join(lines) + "\n"
+
+
+def cmd_table2(args) -> int:
+    from jaxhumanoid.ocp.scheme import TABLE2_SCHEMES
+    from jaxhumanoid.strategy.solve import solve
+
+    out = pathlib.Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    records = []
+    tasks = args.tasks or ["T1", "T2", "T3", "T4"]
+    schemes = args.schemes or list(TABLE2_SCHEMES)
+    cells = [(t, s) for t in tasks for s in schemes]
+    t_start = time.perf_counter()
+    for i, (task, scheme) in enumerate(cells, 1):
+        if not args.quiet:
+            print(f"[{i}/{len(cells)}] {task} {scheme} ... (elapsed {time.perf_counter() - t_start:.0f} s)", flush=True)
+        sol = solve(task, scheme, solver=args.solver, N=args.N, options=_ipopt_options(args.ipopt_option))
+        cell_dir = out / f"{task}_{scheme.replace(',', '_').replace('+', 'p')}"
+        rec = _save(sol, cell_dir)
+        records.append(rec)
+        if not args.quiet:
+            print(f"      {rec['status']}, iterations {rec['iterations']}, solve {[round(t, 2) for t in rec['solve_time_s']]} s", flush=True)
+        (out / "table2.json").write_text(json.dumps(records, indent=2) + "\n")
+    (out / "table2.md").write_text(_table2_markdown(records))
+    if not args.quiet:
+        print(_table2_markdown(records))
+    return 0
+
+
+def cmd_animate(args) -> int:
+    from jaxhumanoid.outputs.animation import animate
+    from jaxhumanoid.outputs.solution import Solution
+
+    sol = Solution.load(args.dir)
+    path = animate(sol, pathlib.Path(args.dir) / args.name)
+    if not args.quiet:
+        print(f"wrote {path}")
+    return 0
+
+
+def cmd_check(args) -> int:
+    from jaxhumanoid import checks
+
+    return checks.main(task=args.task, scheme=args.scheme, N=args.N, quiet=args.quiet)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="jaxhumanoid", description="Two-stage trajectory optimisation of a planar humanoid (JAX).")
+    parser.add_argument("--no-cache", action="store_true", help="do not use the persistent JAX compilation cache")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    def common(p):
+        p.add_argument("--N", type=int, default=100, help="number of intervals of the (final) grid (default 100)")
+        p.add_argument("--solver", default="ipopt", choices=["ipopt", "ipm", "casadi"])
+        p.add_argument("--ipopt-option", action="append", metavar="KEY=VALUE", help="IPOPT option, repeatable")
+        p.add_argument("--quiet", action="store_true")
+
+    p = sub.add_parser("solve", help="solve one task with one strategy")
+    p.add_argument("--task", default="T1", help="T1..T4 or prone-to-stand, stand-to-prone, supine-to-stand, stand-to-supine")
+    p.add_argument("--scheme", default="A,F+C,2S", help="e.g. A,F+C,2S | A,F+C,1S | A,F,1S | E,F,1S")
+    p.add_argument("--T", type=float, default=5.0, help="horizon in seconds (default 5)")
+    p.add_argument("--out", default="out/solve")
+    p.add_argument("--animate", action="store_true", help="also write animation.gif")
+    p.add_argument("--verbose", action="store_true", help="print IPOPT's iteration log")
+    common(p)
+    p.set_defaults(func=cmd_solve)
+
+    p = sub.add_parser("table2", help="run the 16 cells of the paper's Table II")
+    p.add_argument("--out", default="out/table2")
+    p.add_argument("--tasks", nargs="*")
+    p.add_argument("--schemes", nargs="*")
+    common(p)
+    p.set_defaults(func=cmd_table2)
+
+    p = sub.add_parser("animate", help="write an animation of a saved solution")
+    p.add_argument("dir", help="directory written by `jaxhumanoid solve`")
+    p.add_argument("--name", default="animation.gif")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=cmd_animate)
+
+    p = sub.add_parser("check", help="cross-validate JAX against CasADi and finite differences")
+    p.add_argument("--task", default="T1")
+    p.add_argument("--scheme", default="A,F+C")
+    p.add_argument("--N", type=int, default=10)
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=cmd_check)
+    return parser
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    if not args.no_cache:
+        enable_compilation_cache()
+    try:
+        return int(args.func(args) or 0)
+    except ValueError as err:
+        print(f"jaxhumanoid: error: {err}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,126 @@
+"""The own interior-point method on Hock-Schittkowski problems, a restoration case, an infeasible
+problem, a staged optimal-control problem, a vmap batch, warm start and option validation."""
+
+import numpy as np
+import pytest
+
+import jaxhumanoid  # noqa: F401  (float64)
+import jax.numpy as jnp
+
+from jaxhumanoid.solvers import testproblems as tp
+from jaxhumanoid.solvers.ipm import IPMOptions, batch_solve_ipm, solve_ipm
+
+# degenerate HS013 (no constraint qualification at x*) converges only to ~1e-3 in f, as with IPOPT
+F_TOL = {"hs013": 5e-3}
+
+
+@pytest.mark.parametrize("name", sorted(tp.HS_PROBLEMS))
+def test_hock_schittkowski_optimum(name):
+    nlp, bounds, p, f_star = tp.HS_PROBLEMS[name]()
+    r = solve_ipm(nlp, p, bounds)
+    assert r.success, (r.status, r.log)
+    assert abs(r.objective - f_star) <= F_TOL.get(name, 1e-6) * max(1.0, abs(f_star)), r.log
+    assert r.max_constraint_violation <= 1e-6
+    assert r.history["obj"].shape == (r.iterations + 1,)
+    assert "EXIT: " + r.status in r.log
+
+
+def test_hs071_multipliers_match_ipopt_convention():
+    nlp, bounds, p, _ = tp.hs071()
+    r = solve_ipm(nlp, p, bounds)
+    assert r.status == "Solve_Succeeded" and r.iterations <= 15
+    np.testing.assert_allclose(r.x, [1.0, 4.74299963, 3.82114998, 1.37940829], atol=1e-6)
+    # Lagrangian L = f + lam^T g: IPOPT reports lam = (-0.55229366, 0.16146857) for HS071
+    np.testing.assert_allclose(r.lam_g, [-0.55229366, 0.16146857], atol=1e-6)
+    grad = np.asarray(nlp.grad(jnp.asarray(r.x), p))
+    J = np.asarray(nlp.jac_values(jnp.asarray(r.x), p)).reshape(nlp.m, nlp.n)
+    np.testing.assert_allclose(grad + J.T @ r.lam_g - r.z_l + r.z_u, 0.0, atol=1e-6)
+
+
+def test_restoration_phase_rescues_wachter_biegler_example():
+    nlp, bounds, p, f_star = tp.wachter_biegler()
+    r = solve_ipm(nlp, p, bounds)
+    assert r.success, r.log
+    assert abs(r.objective - f_star) < 1e-6
+    np.testing.assert_allclose(r.x, [1.0, 0.0, 0.5], atol=1e-6)
+    assert ord("r") in r.history["kind"], "the filter line search alone must fail on this example"
+    assert r.history["resto_iters"][-1] > 0
+
+
+def test_infeasible_problem_detected():
+    nlp, bounds, p, _ = tp.infeasible_disk()
+    r = solve_ipm(nlp, p, bounds)
+    assert r.status == "Infeasible_Problem_Detected" and not r.success
+    assert r.max_constraint_violation > 0.1
+
+
+def test_staged_cartpole_block_tridiagonal_against_ipopt():
+    nlp, bounds, p, _ = tp.cartpole_swingup(N=25, P=1)
+    from jaxhumanoid.solvers.ipm import kkt
+    st = kkt.structure_of(nlp)
+    assert st.S == 26 and st.nb == 10
+    r = solve_ipm(nlp, p, bounds)
+    assert r.success, r.log
+    assert r.max_constraint_violation < 1e-8
+    # fixed initial / terminal states stay exactly at their values
+    np.testing.assert_array_equal(r.x[:4], bounds.xl[:4])
+    np.testing.assert_array_equal(r.x[-4:], bounds.xl[-4:])
+    cyipopt = pytest.importorskip("cyipopt")
+    import jax
+
+    f, g, gr, jv, hv = (jax.jit(fn) for fn in (nlp.f, nlp.g, nlp.grad, nlp.jac_values, nlp.hess_values))
+
+    class Prob:
+        def objective(self, x): return float(f(x, p))
+        def gradient(self, x): return np.asarray(gr(x, p))
+        def constraints(self, x): return np.asarray(g(x, p))
+        def jacobian(self, x): return np.asarray(jv(x, p))
+        def jacobianstructure(self): return nlp.jac_rows, nlp.jac_cols
+        def hessian(self, x, lam, sigma): return np.asarray(hv(x, lam, sigma, p))
+        def hessianstructure(self): return nlp.hess_rows, nlp.hess_cols
+
+    prob = cyipopt.Problem(n=nlp.n, m=nlp.m, problem_obj=Prob(), lb=bounds.xl, ub=bounds.xu,
+                           cl=bounds.gl, cu=bounds.gu)
+    prob.add_option("print_level", 0)
+    prob.add_option("fixed_variable_treatment", "make_parameter")
+    x_ip, info = prob.solve(bounds.x0)
+    assert info["status"] == 0
+    assert abs(r.objective - info["obj_val"]) <= 1e-6 * abs(info["obj_val"])
+
+
+def test_vmap_batch_of_perturbed_hs071():
+    nlp, bounds, p, _ = tp.hs071()
+    P = np.array([[25.0, 40.0], [24.0, 39.0], [26.0, 41.0], [25.5, 40.5]])
+    res = batch_solve_ipm(nlp, jnp.asarray(P), bounds)
+    assert len(res) == 4
+    assert all(r.success for r in res), [r.status for r in res]
+    assert abs(res[0].objective - 17.0140172891) < 1e-6
+    for pk, rb in zip(P, res):
+        rs = solve_ipm(nlp, jnp.asarray(pk), bounds)
+        assert abs(rs.objective - rb.objective) < 1e-7
+        np.testing.assert_allclose(rb.x, rs.x, atol=1e-6)
+        assert rs.iterations == rb.iterations      # frozen members do not drift
+    assert len({r.iterations for r in res}) >= 1
+
+
+def test_warm_start_and_max_iter():
+    nlp, bounds, p, _ = tp.hs071()
+    cold = solve_ipm(nlp, p, bounds)
+    warm = solve_ipm(nlp, p, bounds, x0=cold.x + 1e-3, options={"mu_init": 1e-4})
+    assert warm.success and warm.iterations < cold.iterations
+    short = solve_ipm(nlp, p, bounds, options=IPMOptions(max_iter=3))
+    assert short.status == "Maximum_Iterations_Exceeded" and not short.success
+    assert short.iterations == 3 and short.history["mu"].shape == (4,)
+    assert "EXIT: Maximum_Iterations_Exceeded" in short.log
+
+
+@pytest.mark.parametrize("bad, match", [
+    ({"tol": -1.0}, "tol"),
+    ({"kappa_mu": 1.5}, "kappa_mu"),
+    ({"max_iter": 0}, "max_iter"),
+    ({"nlp_scaling_method": "foo"}, "nlp_scaling_method.*gradient-based"),
+    ({"no_such_option": 1}, "unknown IPM option"),
+])
+def test_bad_options_raise(bad, match):
+    with pytest.raises(ValueError, match=match):
+        IPMOptions(**bad) if "no_such_option" not in bad else solve_ipm(*tp.hs071()[:1], None, None, options=bad)
