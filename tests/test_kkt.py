@@ -50,7 +50,7 @@ def sparse_kkt(n, m, hr, hc, hv, jr, jc, jv, dx, dc):
     return sp.bmat([[W, J.T], [J, sp.diags(dc)]]).tocsc()
 
 
-@pytest.mark.parametrize("S,nx,nc,shift", [(1, 6, 3, 0.0), (5, 4, 3, 0.0), (12, 5, 4, 3.0)])
+@pytest.mark.parametrize("S,nx,nc,shift", [(1, 6, 3, 0.0), (5, 4, 3, 0.0), (12, 5, 4, 3.0), (30, 6, 5, 8.0)])
 def test_block_tridiagonal_solve_and_inertia(S, nx, nc, shift):
     rng = np.random.default_rng(S * 100 + nx)
     n, m, vs, cs, hr, hc, jr, jc = random_staged_pattern(rng, S, nx, nc)
@@ -61,16 +61,17 @@ def test_block_tridiagonal_solve_and_inertia(S, nx, nc, shift):
     dx = rng.uniform(0.0, 1.0, n) + shift      # indefinite W when shift == 0
     dc = -rng.uniform(0.0, 1e-3, m)
     A, B = kkt.assemble(st, jnp.asarray(hv), jnp.asarray(jv), jnp.asarray(dx), jnp.asarray(dc))
-    fac = kkt.factor(st, A, B)
     K = sparse_kkt(n, m, hr, hc, hv, jr, jc, jv, dx, dc)
     ev = np.linalg.eigvalsh(K.toarray())
-    assert int(fac.npos) == int(np.sum(ev > 0))
-    assert int(fac.nneg) == int(np.sum(ev < 0))
-    assert int(fac.nzero) == 0
     rx, rc = rng.standard_normal(n), rng.standard_normal(m)
-    ux, uc = kkt.solve(st, fac, A, B, jnp.asarray(rx), jnp.asarray(rc))
     ref = spla.spsolve(K, np.concatenate([rx, rc]))
-    np.testing.assert_allclose(np.concatenate([ux, uc]), ref, rtol=1e-8, atol=1e-8)
+    for fast in (True, False):      # Cholesky fast path with eigh fallback / eigh only
+        fac = kkt.factor(st, A, B, fast=fast)
+        assert int(fac.npos) == int(np.sum(ev > 0))
+        assert int(fac.nneg) == int(np.sum(ev < 0))
+        assert int(fac.nzero) == 0
+        ux, uc = kkt.solve(st, fac, A, B, jnp.asarray(rx), jnp.asarray(rc))
+        np.testing.assert_allclose(np.concatenate([ux, uc]), ref, rtol=1e-8, atol=1e-8)
     # the dense stage-ordered matrix is a symmetric permutation of K, padding aside
     Kd = kkt.dense_matrix(st, A, B)
     perm = np.concatenate([st.var_pos, st.con_pos])

@@ -229,10 +229,12 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         diag_c = jnp.where(P.free, -1.0, -(dc + inv_s))
         return h_mask, jac_mask, inv_s, diag_x, diag_c
 
-    def factorize(P, Wvals, jac, sig_x, sig_s, dw, dc):
+    def factorize(P, Wvals, jac, sig_x, sig_s, dw, dc, fast=True):
+        """Assemble and factor; ``fast=False`` (eigh blocks only) keeps the rarely used call
+        sites (restoration, multiplier initialisation) small for the compiler."""
         h_mask, jac_mask, inv_s, diag_x, diag_c = kkt_parts(P, None, Wvals, sig_x, sig_s, dw, dc)
         A, B = kkt.assemble(st, Wvals * h_mask, jac * jac_mask, diag_x, diag_c)
-        fac = kkt.factor(st, A, B)
+        fac = kkt.factor(st, A, B, fast=fast)
         return A, B, fac, inv_s
 
     def solve_reduced(P, A, B, fac, inv_s, rx, rs, c):
@@ -322,7 +324,7 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         jac_mask = jnp.where(P.free[jr] | P.fixed[jc], 0.0, 1.0)
         diag_c = jnp.where(P.free, -1.0, jnp.where(ineq_b, -1.0, 0.0))
         A, B = kkt.assemble(st, jnp.zeros(hr.size), ev.jac * jac_mask, jnp.ones(n), diag_c)
-        fac = kkt.factor(st, A, B)
+        fac = kkt.factor(st, A, B, fast=False)
         a = jnp.where(P.fixed, 0.0, ev.grad - it.zl + it.zu)
         b = jnp.where(ineq_b, -it.vl + it.vu, 0.0)
         _, y = kkt.solve(st, fac, A, B, -a, -b, o.iterative_refinement_steps)
@@ -392,7 +394,7 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
             sig_s = jnp.where(P.hsl, R.mu_r / dsl ** 2, 0.0) + jnp.where(P.hsu, R.mu_r / dsu ** 2, 0.0)
             zeta = R.zeta
             gbx, gbs = barrier_grad(P, jnp.zeros(n), x, s, R.mu_r)
-            A, B, fac, inv_s = factorize(P, jnp.zeros(hr.size), jac, sig_x, sig_s, zeta, 1.0)
+            A, B, fac, inv_s = factorize(P, jnp.zeros(hr.size), jac, sig_x, sig_s, zeta, 1.0, fast=False)
             dx, ds, _ = solve_reduced(P, A, B, fac, inv_s, gbx, gbs, c)
             ds = jnp.where(P.eq | P.free, 0.0, ds)
             amax = frac_to_boundary(P, x, s, dx, ds, 0.99)

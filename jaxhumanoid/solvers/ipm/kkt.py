@@ -16,8 +16,11 @@ S diagonal blocks A_k and sub-diagonal blocks B_k = K[stage k+1, stage k]:
     L_{k+1,k} = B_k D_k^{-1}                                          (block LDL^T, lax.scan)
 
 By Sylvester's law of inertia, inertia(K) = sum_k inertia(D_k); the padding contributes exactly
-one positive eigenvalue per padded row, which is subtracted. The small dense D_k are symmetrically
-equilibrated (a congruence) and eigen-decomposed inside the scan: the signs of the eigenvalues
+one eigenvalue of known sign per padded row, which is subtracted. Each block is laid out as
+[variables | constraints] (split at a static size), so that the pivot blocks D_k are first tried
+as quasi-definite matrices (Cholesky of the primal part and of minus the Schur complement; then
+the inertia is known exactly and D_k^{-1} follows from matrix products). Blocks where that fails
+are symmetrically equilibrated (a congruence) and eigen-decomposed: the signs of the eigenvalues
 give the exact inertia (Sylvester) and the decomposition gives D_k^{-1}, so the solves are pure
 matrix-vector products. (On XLA:CPU, small triangular solves are much slower than a 40 x 40
 ``eigh``; an LU + Sturm-sequence variant was measured and dropped.) No n x n matrix is formed.
@@ -50,6 +53,8 @@ class KKTStructure:
     var_pos: np.ndarray      # (n,) position of variable i in the stage-ordered vector (S*nb)
     con_pos: np.ndarray      # (m,) position of constraint multiplier j
     pad_pos: np.ndarray      # (n_pad,) padding positions
+    pad_sign: np.ndarray     # (n_pad,) +1 for padding in the primal part, -1 in the dual part
+    nbx: int                 # primal part of every block: local positions [0, nbx)
     hess_t1: np.ndarray      # (nnz_h,) flat target of K[r, c] for hessian entry (r, c)
     hess_t2: np.ndarray      # (nnz_h,) flat target of the mirrored entry K[c, r] (or trash)
     jac_t1: np.ndarray       # (nnz_j,) flat target of K[y_j, x_i]
@@ -61,6 +66,14 @@ class KKTStructure:
     @property
     def n_pad(self) -> int:
         return int(self.pad_pos.size)
+
+    @property
+    def n_pad_pos(self) -> int:
+        return int(np.sum(self.pad_sign > 0))
+
+    @property
+    def n_pad_neg(self) -> int:
+        return int(np.sum(self.pad_sign < 0))
 
     @property
     def size(self) -> int:
@@ -89,19 +102,28 @@ def build_structure(n, m, var_stage, con_stage, hess_rows, hess_cols, jac_rows, 
     vs, cs, S = _compress_stages(var_stage, con_stage) if n + m else (var_stage, con_stage, 1)
     nvar = np.bincount(vs, minlength=S)
     ncon = np.bincount(cs, minlength=S)
-    nb = int(max(1, (nvar + ncon).max()))
-    # local positions: variables first, then constraints, then padding
+    # local layout of a block: [variables, primal padding | constraints, dual padding], split at
+    # the static nbx = max_k n_k so that the fast path can factor the primal part first
+    nbx = int(nvar.max()) if n else 0
+    nbc = int(ncon.max()) if m else 0
+    if nbx + nbc == 0:
+        nbx = 1
+    nb = nbx + nbc
     var_loc = np.zeros(n, np.int64)
     con_loc = np.zeros(m, np.int64)
-    fill = np.zeros(S, np.int64)
+    fx = np.zeros(S, np.int64)
+    fc = np.zeros(S, np.int64)
     for i in range(n):
-        var_loc[i] = fill[vs[i]]
-        fill[vs[i]] += 1
+        var_loc[i] = fx[vs[i]]
+        fx[vs[i]] += 1
     for j in range(m):
-        con_loc[j] = fill[cs[j]]
-        fill[cs[j]] += 1
-    pad_stage = np.concatenate([np.full(nb - fill[k], k) for k in range(S)]).astype(np.int64)
-    pad_loc = np.concatenate([np.arange(fill[k], nb) for k in range(S)]).astype(np.int64)
+        con_loc[j] = nbx + fc[cs[j]]
+        fc[cs[j]] += 1
+    pad_stage = np.concatenate([np.full(nbx - fx[k], k) for k in range(S)]
+                               + [np.full(nbc - fc[k], k) for k in range(S)]).astype(np.int64)
+    pad_loc = np.concatenate([np.arange(fx[k], nbx) for k in range(S)]
+                             + [np.arange(nbx + fc[k], nb) for k in range(S)]).astype(np.int64)
+    pad_sign = np.concatenate([np.ones(int(np.sum(nbx - fx)))] + [-np.ones(int(np.sum(nbc - fc)))])
 
     nbb = nb * nb
     off_b = S * nbb
@@ -135,6 +157,7 @@ def build_structure(n, m, var_stage, con_stage, hess_rows, hess_cols, jac_rows, 
     return KKTStructure(
         n=n, m=m, S=S, nb=nb,
         var_pos=vs * nb + var_loc, con_pos=cs * nb + con_loc, pad_pos=pad_stage * nb + pad_loc,
+        pad_sign=pad_sign, nbx=nbx,
         hess_t1=h1, hess_t2=h2, jac_t1=j1, jac_t2=j2,
         var_diag_t=vs * nbb + var_loc * (nb + 1), con_diag_t=cs * nbb + con_loc * (nb + 1),
         pad_diag_t=pad_stage * nbb + pad_loc * (nb + 1),
@@ -158,7 +181,7 @@ def assemble(st: KKTStructure, hess_vals, jac_vals, diag_x, diag_c):
     idx = np.concatenate([st.hess_t1, st.hess_t2, st.jac_t1, st.jac_t2, st.var_diag_t,
                           st.con_diag_t, st.pad_diag_t])
     vals = jnp.concatenate([hess_vals, hess_vals, jac_vals, jac_vals, diag_x, diag_c,
-                            jnp.ones(st.n_pad)])
+                            jnp.asarray(st.pad_sign, dtype=jnp.result_type(float))])
     flat = flat.at[idx].add(vals)
     A = flat[: S * nb * nb].reshape(S, nb, nb)
     B = flat[S * nb * nb: 2 * S * nb * nb].reshape(S, nb, nb)
@@ -196,16 +219,74 @@ def _pivot_block(Dk, rel_zero_tol):
     return Dinv, nneg, nzero
 
 
-def factor(st: KKTStructure, A, B, rel_zero_tol: float | None = None) -> Factor:
-    """Block LDL^T of K by a forward ``lax.scan`` over the stages; inertia of K included."""
+def _tri_inv(L):
+    """Inverse of a lower-triangular matrix by recursive 2 x 2 blocking (as LAPACK trtri), with
+    matrix products only (XLA:CPU's triangular solves are very slow for small matrices). Blocks of
+    size <= 4: L = diag(d) (I + N), N nilpotent, (I + N)^{-1} = (I - N)(I + N^2)."""
+    n = L.shape[-1]
+    if n <= 4:
+        d = jnp.diagonal(L)
+        M = jnp.eye(n) - L / d[:, None]          # -N
+        X = (jnp.eye(n) + M) @ (jnp.eye(n) + M @ M)
+        return X / d[None, :]
+    h = n // 2
+    A = _tri_inv(L[:h, :h])
+    C = _tri_inv(L[h:, h:])
+    low = -(C @ L[h:, :h]) @ A
+    return jnp.concatenate([jnp.concatenate([A, jnp.zeros((h, n - h), L.dtype)], axis=1),
+                            jnp.concatenate([low, C], axis=1)], axis=0)
+
+
+def _quasidefinite_block(Dk, nbx):
+    """Fast path: D_k = [[P, Q^T], [Q, R]] (primal part first) with P > 0 and -(R - Q P^{-1} Q^T) > 0
+    checked by two Cholesky factorisations; then inertia(D_k) = (nbx, nb - nbx, 0) exactly
+    (Sylvester) and D_k^{-1} follows from the block formula. Returns (Dinv, ok)."""
+    nb = Dk.shape[0]
+    P = Dk[:nbx, :nbx]
+    Lp = jnp.linalg.cholesky(P)
+    Lpi = _tri_inv(Lp)
+    Pinv = Lpi.T @ Lpi
+    if nbx == nb:
+        return Pinv, jnp.all(jnp.isfinite(Pinv))
+    Q = Dk[nbx:, :nbx]
+    R = Dk[nbx:, nbx:]
+    W = Q @ Lpi.T
+    Sc = W @ W.T - R                      # minus the Schur complement
+    Ls = jnp.linalg.cholesky(0.5 * (Sc + Sc.T))
+    Lsi = _tri_inv(Ls)
+    Scinv = Lsi.T @ Lsi
+    G = Pinv @ Q.T
+    GS = G @ Scinv
+    Dinv = jnp.concatenate([jnp.concatenate([Pinv - GS @ G.T, GS], axis=1),
+                            jnp.concatenate([GS.T, -Scinv], axis=1)], axis=0)
+    return Dinv, jnp.all(jnp.isfinite(Dinv))
+
+
+def factor(st: KKTStructure, A, B, rel_zero_tol: float | None = None, fast: bool = True) -> Factor:
+    """Block LDL^T of K by a forward ``lax.scan`` over the stages; inertia of K included.
+
+    Each pivot block first tries the quasi-definite fast path (two Choleskys); only blocks where
+    it fails (indefinite primal part, or singular) are eigen-decomposed (``lax.cond``), so the
+    inertia is exact in both cases.
+    """
     if rel_zero_tol is None:
         rel_zero_tol = 10.0 * st.nb * float(np.finfo(np.float64).eps)
+    nbx, nb = st.nbx, st.nb
+
+    def slow(Dk):
+        return _pivot_block(Dk, rel_zero_tol)
 
     def body(C, ab):
         a, b = ab
         Dk = a - C
         Dk = 0.5 * (Dk + Dk.T)
-        Dinv, nneg, nzero = _pivot_block(Dk, rel_zero_tol)
+        if fast and nbx > 0:
+            Dinv_f, ok = _quasidefinite_block(Dk, nbx)
+            Dinv, nneg, nzero = lax.cond(
+                ok, lambda D_: (Dinv_f, jnp.asarray(nb - nbx, jnp.int64), jnp.zeros((), jnp.int64)),
+                lambda D_: tuple(v.astype(jnp.int64) if v.ndim == 0 else v for v in slow(D_)), Dk)
+        else:
+            Dinv, nneg, nzero = slow(Dk)
         X = Dinv @ b.T                         # D_k^{-1} B_k^T
         Cn = b @ X
         return 0.5 * (Cn + Cn.T), (Dinv, X.T, nneg, nzero)
@@ -214,8 +295,8 @@ def factor(st: KKTStructure, A, B, rel_zero_tol: float | None = None) -> Factor:
     _, (Dinv, L, nneg, nzero) = lax.scan(body, C0, (A, B))
     nneg = jnp.sum(nneg)
     nzero = jnp.sum(nzero)
-    npos = st.S * st.nb - nneg - nzero - st.n_pad
-    return Factor(Dinv, L, npos, nneg, nzero)
+    npos = st.S * st.nb - nneg - nzero - st.n_pad_pos
+    return Factor(Dinv, L, npos, nneg - st.n_pad_neg, nzero)
 
 
 def _solve_vec(fac: Factor, r):
