@@ -32,6 +32,15 @@ def _upper_ones():
     return jnp.triu(jnp.ones((5, 5)))
 
 
+def _angle_differences(q):
+    """cos(theta_i - theta_j) and sin(theta_i - theta_j), (5, 5) each, from 5 cosines and 5 sines
+    (outer products: 10 transcendental evaluations instead of 50, which matters inside the
+    compressed derivative sweeps)."""
+    theta = kin.absolute_angles(q)
+    c, s = jnp.cos(theta), jnp.sin(theta)
+    return jnp.outer(c, c) + jnp.outer(s, s), jnp.outer(s, c) - jnp.outer(c, s)
+
+
 def lever_inertia(model: Humanoid):
     """K = sum_l m_l A[l]^T A[l], shape (5, 5); constant for given parameters."""
     A = kin.com_lever(model)
@@ -52,26 +61,23 @@ def rotational_inertia(model: Humanoid):
 
 def inertia_matrix(model: Humanoid, q):
     """B(q), shape (5, 5): pattern form of Sec. II-C."""
-    theta = kin.absolute_angles(q)
-    cos_diff = jnp.cos(theta[:, None] - theta[None, :])
+    cos_diff, _ = _angle_differences(q)
     U = _upper_ones()
     return U @ (lever_inertia(model) * cos_diff) @ U.T + rotational_inertia(model)
 
 
 def coriolis_matrix(model: Humanoid, q, qd):
     """C(q, qd), shape (5, 5), with dB/dt - 2C skew-symmetric."""
-    theta = kin.absolute_angles(q)
+    _, sin_diff = _angle_differences(q)
     thetad = kin.absolute_angles(qd)
-    sin_diff = jnp.sin(theta[:, None] - theta[None, :])
     U = _upper_ones()
     return U @ (lever_inertia(model) * sin_diff * thetad[None, :]) @ U.T
 
 
 def coriolis_vector(model: Humanoid, q, qd):
     """C(q, qd) qd, shape (5,), without forming C: U (K o S) thetad^2."""
-    theta = kin.absolute_angles(q)
+    _, sin_diff = _angle_differences(q)
     thetad = kin.absolute_angles(qd)
-    sin_diff = jnp.sin(theta[:, None] - theta[None, :])
     return kin.to_relative_gradient((lever_inertia(model) * sin_diff) @ thetad**2)
 
 

@@ -142,7 +142,17 @@ def cmd_animate(args) -> int:
 def cmd_check(args) -> int:
     from jaxhumanoid import checks
 
-    return checks.main(task=args.task, scheme=args.scheme, N=args.N, quiet=args.quiet)
+    schemes = [args.scheme] if args.scheme else ["E,F", "A,F", "A,F+C"]
+    tasks = [args.task] if args.task else ["T1", "T2", "T3", "T4"]
+    cases = [(t, f"{s},1S", False) for t in tasks for s in schemes]
+    cases += [(t, "A,F+C,2S", True) for t in tasks]  # the pseudo-static stage-1 problem
+    rows = checks.check_table(cases, N=args.N, points=args.points)
+    print(checks.format_table(rows))
+    if args.out:
+        pathlib.Path(args.out).write_text(json.dumps(rows, indent=2, default=float) + "\n")
+    failed = [r for r in rows if not r["ok"]]
+    print(f"{len(rows) - len(failed)} passed, {len(failed)} failed")
+    return 0 if not failed else 1
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -180,10 +190,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_animate)
 
     p = sub.add_parser("check", help="cross-validate JAX against CasADi and finite differences")
-    p.add_argument("--task", default="T1")
-    p.add_argument("--scheme", default="A,F+C")
-    p.add_argument("--N", type=int, default=10)
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--task", default=None, help="one task (default: all four)")
+    p.add_argument("--scheme", default=None, help="E,F | A,F | A,F+C (default: all three, plus the pseudo-static stage 1)")
+    p.add_argument("--N", type=int, default=8)
+    p.add_argument("--points", type=int, default=2, help="random points per case")
+    p.add_argument("--out", default=None, help="also write the rows as JSON")
     p.set_defaults(func=cmd_check)
     return parser
 

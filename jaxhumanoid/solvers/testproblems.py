@@ -17,6 +17,7 @@ where only a local solution is known).
 
 from __future__ import annotations
 
+import functools
 from typing import Callable
 
 import jax
@@ -29,7 +30,10 @@ INF = np.inf
 
 
 def dense_nlp(name: str, n: int, m: int, f: Callable, g: Callable) -> NLP:
-    """NLP with dense Jacobian and dense lower-triangular Hessian patterns; f(x, p), g(x, p)."""
+    """NLP with dense Jacobian and dense lower-triangular Hessian patterns; f(x, p), g(x, p).
+
+    Constructors below return one cached NLP instance per problem, so that solvers caching their
+    compiled code on the instance compile each problem once per process."""
     jr, jc = np.meshgrid(np.arange(m), np.arange(n), indexing="ij")
     hr, hc = np.tril_indices(n)
 
@@ -50,6 +54,16 @@ def dense_nlp(name: str, n: int, m: int, f: Callable, g: Callable) -> NLP:
                var_stage=np.zeros(n, np.int64), con_stage=np.zeros(m, np.int64), name=name)
 
 
+def _cached(name, n, m, f, g):
+    key = name
+    if key not in _NLP_CACHE:
+        _NLP_CACHE[key] = dense_nlp(name, n, m, f, g)
+    return _NLP_CACHE[key]
+
+
+_NLP_CACHE: dict = {}
+
+
 def _b(x0, xl, xu, gl, gu):
     return Bounds(np.asarray(x0, float), np.asarray(xl, float), np.asarray(xu, float),
                   np.asarray(gl, float), np.asarray(gu, float))
@@ -58,34 +72,34 @@ def _b(x0, xl, xu, gl, gu):
 def hs001():
     """Rosenbrock with x2 >= -1.5; f* = 0 at (1, 1)."""
     f = lambda x, p: 100.0 * (x[1] - x[0] ** 2) ** 2 + (1.0 - x[0]) ** 2
-    nlp = dense_nlp("hs001", 2, 0, f, None)
+    nlp = _cached("hs001", 2, 0, f, None)
     return nlp, _b([-2.0, 1.0], [-INF, -1.5], [INF, INF], [], []), None, 0.0
 
 
 def hs006():
     f = lambda x, p: (1.0 - x[0]) ** 2
     g = lambda x, p: jnp.array([10.0 * (x[1] - x[0] ** 2)])
-    return dense_nlp("hs006", 2, 1, f, g), _b([-1.2, 1.0], [-INF] * 2, [INF] * 2, [0.0], [0.0]), None, 0.0
+    return _cached("hs006", 2, 1, f, g), _b([-1.2, 1.0], [-INF] * 2, [INF] * 2, [0.0], [0.0]), None, 0.0
 
 
 def hs010():
     f = lambda x, p: x[0] - x[1]
     g = lambda x, p: jnp.array([-3.0 * x[0] ** 2 + 2.0 * x[0] * x[1] - x[1] ** 2 + 1.0])
-    return dense_nlp("hs010", 2, 1, f, g), _b([-10.0, 10.0], [-INF] * 2, [INF] * 2, [0.0], [INF]), None, -1.0
+    return _cached("hs010", 2, 1, f, g), _b([-10.0, 10.0], [-INF] * 2, [INF] * 2, [0.0], [INF]), None, -1.0
 
 
 def hs013():
     """Degenerate (constraint qualification fails at x* = (1, 0)); f* = 1."""
     f = lambda x, p: (x[0] - 2.0) ** 2 + x[1] ** 2
     g = lambda x, p: jnp.array([(1.0 - x[0]) ** 3 - x[1]])
-    return dense_nlp("hs013", 2, 1, f, g), _b([-2.0, -2.0], [0.0, 0.0], [INF, INF], [0.0], [INF]), None, 1.0
+    return _cached("hs013", 2, 1, f, g), _b([-2.0, -2.0], [0.0, 0.0], [INF, INF], [0.0], [INF]), None, 1.0
 
 
 def hs035():
     f = lambda x, p: (9.0 - 8 * x[0] - 6 * x[1] - 4 * x[2] + 2 * x[0] ** 2 + 2 * x[1] ** 2 + x[2] ** 2
                       + 2 * x[0] * x[1] + 2 * x[0] * x[2])
     g = lambda x, p: jnp.array([x[0] + x[1] + 2.0 * x[2]])
-    return (dense_nlp("hs035", 3, 1, f, g), _b([0.5] * 3, [0.0] * 3, [INF] * 3, [-INF], [3.0]), None,
+    return (_cached("hs035", 3, 1, f, g), _b([0.5] * 3, [0.0] * 3, [INF] * 3, [-INF], [3.0]), None,
             1.0 / 9.0)
 
 
@@ -94,7 +108,7 @@ def hs071(p=None):
     f = lambda x, p: x[0] * x[3] * (x[0] + x[1] + x[2]) + x[2]
     g = lambda x, p: jnp.array([jnp.prod(x) - p[0], jnp.sum(x ** 2) - p[1]])
     p = jnp.array([25.0, 40.0]) if p is None else jnp.asarray(p, float)
-    return (dense_nlp("hs071", 4, 2, f, g), _b([1.0, 5.0, 5.0, 1.0], [1.0] * 4, [5.0] * 4, [0.0, 0.0], [INF, 0.0]),
+    return (_cached("hs071", 4, 2, f, g), _b([1.0, 5.0, 5.0, 1.0], [1.0] * 4, [5.0] * 4, [0.0, 0.0], [INF, 0.0]),
             p, 17.0140172891)
 
 
@@ -102,7 +116,7 @@ def hs076():
     f = lambda x, p: (x[0] ** 2 + 0.5 * x[1] ** 2 + x[2] ** 2 + 0.5 * x[3] ** 2 - x[0] * x[2] + x[2] * x[3]
                       - x[0] - 3.0 * x[1] + x[2] - x[3])
     g = lambda x, p: jnp.array([x[0] + 2 * x[1] + x[2] + x[3], 3 * x[0] + x[1] + 2 * x[2] - x[3], x[1] + 4 * x[2]])
-    return (dense_nlp("hs076", 4, 3, f, g),
+    return (_cached("hs076", 4, 3, f, g),
             _b([0.5] * 4, [0.0] * 4, [INF] * 4, [-INF, -INF, 1.5], [5.0, 4.0, INF]), None, -4.681818181)
 
 
@@ -119,7 +133,7 @@ def hs100():
             -4 * x[0] ** 2 - x[1] ** 2 + 3 * x[0] * x[1] - 2 * x[2] ** 2 - 5 * x[5] + 11 * x[6],
         ])
 
-    return (dense_nlp("hs100", 7, 4, f, g), _b([1, 2, 0, 4, 0, 1, 1], [-INF] * 7, [INF] * 7, [0.0] * 4, [INF] * 4),
+    return (_cached("hs100", 7, 4, f, g), _b([1, 2, 0, 4, 0, 1, 1], [-INF] * 7, [INF] * 7, [0.0] * 4, [INF] * 4),
             None, 680.6300573)
 
 
@@ -127,7 +141,7 @@ def wachter_biegler():
     """min x1 s.t. x1^2 - x2 - 1 = 0, x1 - x3 - 0.5 = 0, x2, x3 >= 0, from (-2, 1, 1); f* = 1."""
     f = lambda x, p: x[0]
     g = lambda x, p: jnp.array([x[0] ** 2 - x[1] - 1.0, x[0] - x[2] - 0.5])
-    return (dense_nlp("wachter_biegler", 3, 2, f, g),
+    return (_cached("wachter_biegler", 3, 2, f, g),
             _b([-2.0, 1.0, 1.0], [-INF, 0.0, 0.0], [INF] * 3, [0.0, 0.0], [0.0, 0.0]), None, 1.0)
 
 
@@ -135,7 +149,7 @@ def infeasible_disk():
     """x1^2 + x2^2 <= 1 and x1 + x2 >= 3: locally (and globally) infeasible."""
     f = lambda x, p: (x[0] - 1.0) ** 2 + x[1] ** 2
     g = lambda x, p: jnp.array([x[0] ** 2 + x[1] ** 2, x[0] + x[1]])
-    return (dense_nlp("infeasible_disk", 2, 2, f, g), _b([0.0, 0.0], [-INF] * 2, [INF] * 2, [-INF, 3.0], [1.0, INF]),
+    return (_cached("infeasible_disk", 2, 2, f, g), _b([0.0, 0.0], [-INF] * 2, [INF] * 2, [-INF, 3.0], [1.0, INF]),
             None, None)
 
 

@@ -32,7 +32,7 @@ import numpy as np
 from jax import lax
 
 from jaxhumanoid.solvers.ipm import kkt
-from jaxhumanoid.solvers.ipm.options import IPMOptions, make_options
+from jaxhumanoid.solvers.ipm.options import IPMOptions, TracedOptions, float_vector, make_options
 
 # status codes -> IPOPT's return-status strings
 RUNNING = 0
@@ -115,12 +115,15 @@ def _segsum(vals, idx, size):
 
 
 def make_ipm(nlp, options: IPMOptions | dict | None = None):
-    """Pure, jit/vmap-able solver core ``run(x0, xl, xu, gl, gu, p) -> State``.
+    """Pure, jit/vmap-able solver core ``run(x0, xl, xu, gl, gu, p, fopts=None) -> (State, Prob)``.
 
     The returned state holds the final iterate (scaled: use ``unscale`` for user units), the
-    status code (``STATUS``) and the fixed-size history arrays (row k = iteration k).
+    status code (``STATUS``) and the fixed-size history arrays (row k = iteration k). ``fopts``
+    (``options.float_vector``) overrides every float option at run time, so tolerances, mu_init
+    etc. can change without recompiling; integer/boolean/string options are static.
     """
-    o = make_options(options)
+    o_static = make_options(options)
+    o = o_static
     st = kkt.structure_of(nlp)
     n, m = nlp.n, nlp.m
     jr = np.asarray(nlp.jac_rows, np.int64)
@@ -656,7 +659,16 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         return S._replace(done=new_status != 0, status=new_status, n_acceptable=n_acc, hist=hist)
 
     # ---------------------------------------------------------------- driver
-    def run(x0, xl, xu, gl, gu, p):
+    def run(x0, xl, xu, gl, gu, p, fopts=None):
+        nonlocal o
+        vals = jnp.asarray(float_vector(o_static) if fopts is None else fopts, dtype=float)
+        o = TracedOptions(o_static, vals)
+        try:
+            return _run(x0, xl, xu, gl, gu, p)
+        finally:
+            o = o_static
+
+    def _run(x0, xl, xu, gl, gu, p):
         x0, xl, xu, gl, gu = (jnp.asarray(a, dtype=float) for a in (x0, xl, xu, gl, gu))
         fixed = xl == xu
         eq = gl == gu

@@ -11,7 +11,7 @@ import numpy as np
 from jaxhumanoid.ocp.nlp import NLP, Bounds
 from jaxhumanoid.solvers.ipm.algorithm import STATUS, SUCCESS_CODES, make_ipm, unscale
 from jaxhumanoid.solvers.ipm.log import format_log, trim_history
-from jaxhumanoid.solvers.ipm.options import IPMOptions, make_options
+from jaxhumanoid.solvers.ipm.options import IPMOptions, float_vector, make_options, static_part
 from jaxhumanoid.solvers.result import NLPResult, constraint_violation
 
 
@@ -21,18 +21,19 @@ def _core(nlp: NLP, opts: IPMOptions, batched: bool):
     if cache is None:
         cache = {}
         object.__setattr__(nlp, "_ipm_cache", cache)
-    key = (opts, batched)
+    key = (static_part(opts), batched)
     if key not in cache:
-        run = make_ipm(nlp, opts)
+        run = make_ipm(nlp, static_part(opts))
 
-        def fn(x0, xl, xu, gl, gu, p):
-            S, P = run(x0, xl, xu, gl, gu, p)
+        def fn(x0, xl, xu, gl, gu, p, fopts):
+            S, P = run(x0, xl, xu, gl, gu, p, fopts)
             x, lam, zl, zu, f = unscale(S, P)
             return dict(x=x, lam=lam, zl=zl, zu=zu, f=f, g=S.ev.g / P.sg, grad=S.ev.grad / P.sf,
-                        jac=S.ev.jac * P.sf / P.sg[np.asarray(nlp.jac_rows)] / P.sf, status=S.status,
+                        jac=S.ev.jac / P.sg[np.asarray(nlp.jac_rows)], status=S.status,
                         k=S.k, hist=S.hist, resto_iters=S.resto_iters, fixed=P.fixed)
 
-        cache[key] = {"fn": jax.jit(jax.vmap(fn) if batched else fn), "compiled": {}}
+        vfn = jax.vmap(fn, in_axes=(0, 0, 0, 0, 0, 0, None)) if batched else fn
+        cache[key] = {"fn": jax.jit(vfn), "compiled": {}}
     return cache[key]
 
 
@@ -76,15 +77,16 @@ def _package(nlp, out, bounds, opts, solve_time, compile_time):
 def solve_ipm(nlp: NLP, p, bounds: Bounds, x0=None, options: IPMOptions | dict | None = None) -> NLPResult:
     """Solve the NLP with the own interior-point method; warm start from ``x0`` if given.
 
-    The jitted core is compiled once per (NLP, options, argument shapes) and cached; the
-    compile time is reported in ``compile_time_s`` (0 on a cache hit).
+    The jitted core is compiled once per (NLP, integer/boolean/string options, argument shapes)
+    and cached; float options (tolerances, mu_init, ...) are runtime inputs and never recompile.
+    The compile time is reported in ``compile_time_s`` (0 on a cache hit).
     """
     opts = make_options(options)
     x0 = np.asarray(bounds.x0 if x0 is None else x0, dtype=float)
     _check_shapes(nlp, x0, bounds)
     core = _core(nlp, opts, batched=False)
     args = (jnp.asarray(x0), jnp.asarray(bounds.xl, float), jnp.asarray(bounds.xu, float),
-            jnp.asarray(bounds.gl, float), jnp.asarray(bounds.gu, float), p)
+            jnp.asarray(bounds.gl, float), jnp.asarray(bounds.gu, float), p, jnp.asarray(float_vector(opts)))
     key = jax.tree.structure(args), tuple(jnp.shape(a) for a in jax.tree.leaves(args))
     compile_time = 0.0
     if key not in core["compiled"]:
@@ -114,12 +116,15 @@ def batch_solve_ipm(nlp: NLP, p_batch, bounds: Bounds, x0=None, options=None) ->
 
     arrs = [bc(x0, nlp.n), bc(bounds.xl, nlp.n), bc(bounds.xu, nlp.n), bc(bounds.gl, nlp.m), bc(bounds.gu, nlp.m)]
     core = _core(nlp, opts, batched=True)
-    args = tuple(jnp.asarray(a) for a in arrs) + (p_batch,)
+    args = tuple(jnp.asarray(a) for a in arrs) + (p_batch, jnp.asarray(float_vector(opts)))
+    key = jax.tree.structure(args), tuple(jnp.shape(a) for a in jax.tree.leaves(args))
+    compile_time = 0.0
+    if key not in core["compiled"]:
+        t0 = time.perf_counter()
+        core["compiled"][key] = core["fn"].lower(*args).compile()
+        compile_time = time.perf_counter() - t0
     t0 = time.perf_counter()
-    compiled = core["fn"].lower(*args).compile()
-    compile_time = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    out = jax.block_until_ready(compiled(*args))
+    out = jax.block_until_ready(core["compiled"][key](*args))
     solve_time = time.perf_counter() - t0
     out = jax.tree.map(np.asarray, out)
     results = []

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+
+import numpy as np
 from typing import Any
 
 
@@ -156,3 +158,32 @@ def make_options(options: IPMOptions | dict | None) -> IPMOptions:
             raise ValueError(f"unknown IPM option(s) {unknown}; allowed: {sorted(names)}")
         return IPMOptions(**options)
     raise ValueError(f"options must be None, a dict or an IPMOptions, got {type(options).__name__}")
+
+
+FLOAT_FIELDS = tuple(f.name for f in dataclasses.fields(IPMOptions) if f.type in ("float", float))
+
+
+def static_part(o: IPMOptions) -> IPMOptions:
+    """The options with every float field at its default: the part that shapes the compiled code
+    (float options are passed to the compiled solver as a runtime vector, see ``float_vector``)."""
+    defaults = IPMOptions()
+    return dataclasses.replace(o, **{name: getattr(defaults, name) for name in FLOAT_FIELDS})
+
+
+def float_vector(o: IPMOptions) -> np.ndarray:
+    return np.array([float(getattr(o, name)) for name in FLOAT_FIELDS])
+
+
+class TracedOptions:
+    """Read-only view: float options from a (possibly traced) vector, the rest from ``static``."""
+
+    def __init__(self, static: IPMOptions, values):
+        self._static = static
+        self._values = values
+        self._index = {name: i for i, name in enumerate(FLOAT_FIELDS)}
+
+    def __getattr__(self, name):
+        idx = self.__dict__["_index"]
+        if name in idx:
+            return self.__dict__["_values"][idx[name]]
+        return getattr(self.__dict__["_static"], name)

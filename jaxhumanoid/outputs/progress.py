@@ -1,0 +1,132 @@
+"""A tiny progress reporter for long runs (Table II, figure scripts): one line per step.
+
+    progress = Progress(len(cells), quiet=args.quiet)
+    for task, scheme in progress.iter(cells, label=lambda c: f"{c[0]} {c[1]}"):
+        ...                                   # one step
+        progress.note("Solve_Succeeded, iterations [325, 355]")
+
+prints lines such as
+
+    [ 3/16] T1 A,F+C,2S  start  elapsed 1m 12s  ETA 6m 24s
+    [ 3/16] T1 A,F+C,2S  done in 41.0 s  Solve_Succeeded, iterations [325, 355]
+
+The ETA is the mean duration of the finished steps times the number of steps left; it is not
+shown before the first step has finished. Standard library only; output goes to ``stream``
+(default ``sys.stdout``) and is flushed after every line; ``quiet=True`` prints nothing.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from typing import Callable, Iterable, Iterator, TextIO, TypeVar
+
+T = TypeVar("T")
+
+
+def format_duration(seconds: float) -> str:
+    """``"42.0 s"``, ``"3m 05s"`` or ``"1h 02m"``; ``"?"`` for a negative or non-finite value."""
+    if seconds != seconds or seconds < 0 or seconds == float("inf"):
+        return "?"
+    if seconds < 60:
+        return f"{seconds:.1f} s"
+    minutes, secs = divmod(int(round(seconds)), 60)
+    if minutes < 60:
+        return f"{minutes}m {secs:02d}s"
+    hours, minutes = divmod(minutes, 60)
+    return f"{hours}h {minutes:02d}m"
+
+
+class Progress:
+    """Reports step ``i`` of ``total``: its label, the elapsed time and an ETA, one line per event.
+
+    total: number of steps (>= 0); quiet: print nothing; stream: where lines go (default stdout);
+    clock: a monotonic clock in seconds (``time.perf_counter``; replaceable for tests).
+    """
+
+    def __init__(self, total: int, quiet: bool = False, stream: TextIO | None = None,
+                 clock: Callable[[], float] = time.perf_counter):
+        if not isinstance(total, int) or isinstance(total, bool) or total < 0:
+            raise ValueError(f"total: expected a non-negative integer number of steps, got {total!r}")
+        self.total = total
+        self.quiet = bool(quiet)
+        self.stream = stream
+        self.clock = clock
+        self.t_start = clock()
+        self.done = 0
+        self.durations: list[float] = []
+        self._current: tuple[int, str, float] | None = None  # (index, label, start time)
+        self._notes: list[str] = []
+        self.lines: list[str] = []  # every line, also when quiet (handy for logs and tests)
+
+    # -- timing -----------------------------------------------------------------------------
+    @property
+    def elapsed(self) -> float:
+        return self.clock() - self.t_start
+
+    @property
+    def eta(self) -> float | None:
+        """Seconds left (mean finished-step duration x steps left); None before a step has finished."""
+        if not self.durations:
+            return None
+        left = max(self.total - self.done, 0)
+        return sum(self.durations) / len(self.durations) * left
+
+    def _prefix(self, index: int, label: str) -> str:
+        width = len(str(self.total))
+        return f"[{index:>{width}}/{self.total}] {label}".rstrip()
+
+    def _emit(self, line: str) -> None:
+        self.lines.append(line)
+        if not self.quiet:
+            stream = self.stream if self.stream is not None else sys.stdout
+            print(line, file=stream, flush=True)
+
+    # -- events -----------------------------------------------------------------------------
+    def start(self, label: str = "") -> None:
+        """Begin the next step (closes a step still open)."""
+        if self._current is not None:
+            self.finish()
+        index = self.done + 1
+        self._current = (index, str(label), self.clock())
+        eta = self.eta
+        eta_text = "" if eta is None else f"  ETA {format_duration(eta)}"
+        self._emit(f"{self._prefix(index, str(label))}  start  elapsed {format_duration(self.elapsed)}{eta_text}")
+
+    def note(self, message: str) -> None:
+        """Attach a message to the current step; it is printed with the step's ``done`` line."""
+        if self._current is None:
+            self._emit(f"  {message}")
+        else:
+            self._notes.append(str(message))
+
+    def finish(self, message: str = "") -> float:
+        """End the current step; returns its duration in seconds."""
+        if self._current is None:
+            raise RuntimeError("Progress.finish: no step was started")
+        index, label, t0 = self._current
+        duration = self.clock() - t0
+        self.durations.append(duration)
+        self.done += 1
+        self._current = None
+        text = "  ".join(s for s in (*self._notes, message) if s)
+        self._notes = []
+        eta = self.eta
+        eta_text = f"  ETA {format_duration(eta)}" if eta is not None and self.done < self.total else ""
+        self._emit(f"{self._prefix(index, label)}  done in {format_duration(duration)}"
+                   f"{'  ' + text if text else ''}{eta_text}")
+        return duration
+
+    def summary(self) -> str:
+        """One closing line: steps done and total elapsed time (printed unless quiet)."""
+        line = f"{self.done}/{self.total} steps in {format_duration(self.elapsed)}"
+        self._emit(line)
+        return line
+
+    def iter(self, items: Iterable[T], label: Callable[[T], str] | None = None) -> Iterator[T]:
+        """Yield ``items`` wrapping each in start/finish; ``label(item)`` names it (default str)."""
+        for item in items:
+            self.start(label(item) if label is not None else str(item))
+            yield item
+            if self._current is not None:
+                self.finish()

@@ -1,0 +1,619 @@
+"""Parametric sensitivities of an optimal solution x*(p) by implicit differentiation of the KKT
+conditions at a converged IPOPT point (issue 7).
+
+IPOPT's conventions (cyipopt): the Lagrangian is
+
+    L(x, lam, z; p) = f(x, p) + lam . g(x, p) - z_l . (x - xl) + z_u . (x - xu),   z_l, z_u >= 0
+
+and stationarity reads grad f + J^T lam - z_l + z_u = 0. A constraint with only a lower bound
+(g_j >= gl_j) that is active has lam_j <= 0; one at its upper bound has lam_j >= 0.
+
+Active set. A bound or inequality is *active* when its multiplier exceeds its slack (at an
+interior-point solution with barrier mu, multiplier * slack ~ mu, so exactly one of the two is
+O(mu) when strict complementarity holds). Active variable bounds fix the variable (index set B;
+the rest is F); active inequalities join the equalities (row set C). Strict complementarity is
+checked: every active multiplier must be above ``sc_tol`` and every inactive slack above
+``sc_tol`` (a pair with both small is *weakly active*: x*(p) is then only directionally
+differentiable and the sensitivities below are those of the fixed active set). A warning is
+issued when it fails.
+
+Reduced KKT system (second-order sufficiency + LICQ make it nonsingular):
+
+    [ H_FF   J_CF^T ] [ dx_F   ]     [ d_p(grad_x L)_F dp + H_FB dx_B ]
+    [ J_CF   0      ] [ dlam_C ] = - [ d_p g_C dp       + J_CB dx_B   ]
+
+with H the Hessian of the Lagrangian (``nlp.hess_values``, sigma = 1), J = dg/dx
+(``nlp.jac_values``) and dx_B the motion of the active bounds (non-zero only for the goal box,
+see below). The right-hand side is a forward-over-reverse JVP of grad_x (f + lam . g) with
+respect to p at fixed (x, lam). The adjoint (VJP) solves the same symmetric system with
+right-hand side (ct_F, 0) and pulls the solution back through p by one reverse-mode gradient.
+
+Goal posture: the goal enters the *bounds* (the terminal box goal +- GOAL_TOLERANCE), not p.
+``goal`` tangents are handled as bound tangents: an active goal-box bound moves with the goal
+(dx_B = dgoal for those entries), inactive ones do not matter. The horizon T and the start
+posture q_start are ordinary leaves of p.
+
+Optimal value: by the envelope theorem dV/dp = d_p L(x*, lam*; p) (no solve needed) and
+dV/dgoal = z_l . dxl/dgoal - z_u . dxu/dgoal; ``objective_gradient`` gives it, and the chain
+rule through the JVP (``objective_jvp``) is an independent check.
+
+JAX: ``make_solve(problem)`` returns ``solve(p) -> x*`` wrapped in ``jax.custom_vjp`` around an
+IPOPT solve called with ``jax.pure_callback``, so ``jax.grad(lambda p: loss(solve(p)))`` works for
+every differentiable leaf of p (weights, contact, model, T, q_start).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+import warnings
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from jaxhumanoid.ocp import tasks as tasks_mod
+from jaxhumanoid.ocp import transcription as tr
+from jaxhumanoid.ocp.nlp import Bounds
+
+
+class StrictComplementarityWarning(UserWarning):
+    """A bound or inequality is weakly active: multiplier and slack are both (near) zero."""
+
+
+# ----------------------------------------------------------------------------------------------
+# Active set
+
+
+@dataclasses.dataclass(frozen=True)
+class ActiveSet:
+    """Active constraints at a KKT point.
+
+    lower/upper: (n,) variables at their lower/upper bound (fixed in the reduced system);
+    rows: (m,) constraint rows in the reduced system (equalities + active inequalities);
+    ineq_active: (m,) active inequalities (subset of rows); weak_x, weak_g: weakly active pairs;
+    min_active_multiplier: smallest multiplier among active bounds/inequalities;
+    min_inactive_slack: smallest slack among inactive bounds/inequalities;
+    sc_tol: the threshold used.
+    """
+
+    lower: np.ndarray
+    upper: np.ndarray
+    rows: np.ndarray
+    ineq_active: np.ndarray
+    weak_x: np.ndarray
+    weak_g: np.ndarray
+    min_active_multiplier: float
+    min_inactive_slack: float
+    sc_tol: float
+
+    @property
+    def fixed(self) -> np.ndarray:
+        return self.lower | self.upper
+
+    @property
+    def free(self) -> np.ndarray:
+        return ~self.fixed
+
+    @property
+    def strict(self) -> bool:
+        return not (self.weak_x.any() or self.weak_g.any())
+
+    def summary(self) -> dict:
+        return {
+            "n_lower": int(self.lower.sum()),
+            "n_upper": int(self.upper.sum()),
+            "n_rows": int(self.rows.sum()),
+            "n_active_ineq": int(self.ineq_active.sum()),
+            "n_weak": int(self.weak_x.sum() + self.weak_g.sum()),
+            "strict_complementarity": bool(self.strict),
+            "min_active_multiplier": self.min_active_multiplier,
+            "min_inactive_slack": self.min_inactive_slack,
+            "sc_tol": self.sc_tol,
+        }
+
+
+def implied_bounds(problem) -> np.ndarray:
+    """(n,) variables whose box bounds are implied by equality constraints and never active.
+
+    Under scheme A the contact-force variables equal the contact law (f = f_law(q, qd)), whose
+    normal force is > 0 and whose friction force is bounded by mu f_n: the bounds f_n >= 0 and
+    |f| <= CONTACT_FORCE_LIMIT are redundant. For a contact in the air f_law is ~1e-40, i.e. at
+    the bound f_n >= 0 within IPOPT's bound relaxation, and IPOPT reports z_l = mu / 1e-8 there
+    (a barrier artefact that vanishes as mu -> 0, not an active bound); treating such a bound
+    as active makes the reduced KKT matrix singular (the law row loses all free entries).
+    """
+    layout = problem.layout
+    mask = np.zeros((layout.N + 1, layout.s), dtype=bool)
+    if layout.augmented:
+        mask[:, 15:] = True
+    return mask[layout.free_mask()]
+
+
+def identify_active_set(bounds: Bounds, x, g_val, lam_g, z_l, z_u, sc_tol: float = 1e-6, warn: bool = True, ignore_bounds=None) -> ActiveSet:
+    """Active bounds and inequalities from IPOPT's multipliers and slacks (see module doc).
+
+    ``ignore_bounds``: (n,) mask of variables whose bounds are known to be redundant
+    (``implied_bounds``); they are never active.
+    """
+    x, g_val, lam_g = np.asarray(x), np.asarray(g_val), np.asarray(lam_g)
+    z_l, z_u = np.asarray(z_l), np.asarray(z_u)
+    inf = np.inf
+    keep = np.ones(x.shape, dtype=bool) if ignore_bounds is None else ~np.asarray(ignore_bounds, dtype=bool)
+
+    def side(finite, mult, slack):
+        mult = np.where(finite, np.maximum(mult, 0.0), 0.0)
+        slack = np.where(finite, np.maximum(slack, 0.0), inf)
+        active = finite & (mult > slack)
+        weak = finite & (np.maximum(mult, slack) < sc_tol)
+        return active, weak, mult, slack
+
+    lo_a, lo_w, lo_m, lo_s = side(np.isfinite(bounds.xl) & keep, z_l, x - bounds.xl)
+    up_a, up_w, up_m, up_s = side(np.isfinite(bounds.xu) & keep, z_u, bounds.xu - x)
+    eq = np.isfinite(bounds.gl) & (bounds.gl == bounds.gu)
+    gl_fin = np.isfinite(bounds.gl) & ~eq
+    gu_fin = np.isfinite(bounds.gu) & ~eq
+    gl_a, gl_w, gl_m, gl_s = side(gl_fin, -lam_g, g_val - bounds.gl)
+    gu_a, gu_w, gu_m, gu_s = side(gu_fin, lam_g, bounds.gu - g_val)
+    ineq = gl_a | gu_a
+    mults = np.concatenate([lo_m[lo_a], up_m[up_a], gl_m[gl_a], gu_m[gu_a]])
+    lo_fin, up_fin = np.isfinite(bounds.xl) & keep, np.isfinite(bounds.xu) & keep
+    slacks = np.concatenate([lo_s[lo_fin & ~lo_a], up_s[up_fin & ~up_a], gl_s[gl_fin & ~gl_a], gu_s[gu_fin & ~gu_a]])
+    act = ActiveSet(
+        lower=lo_a,
+        upper=up_a,
+        rows=eq | ineq,
+        ineq_active=ineq,
+        weak_x=lo_w | up_w,
+        weak_g=gl_w | gu_w,
+        min_active_multiplier=float(mults.min()) if mults.size else inf,
+        min_inactive_slack=float(slacks.min()) if slacks.size else inf,
+        sc_tol=float(sc_tol),
+    )
+    if warn and not act.strict:
+        warnings.warn(
+            f"strict complementarity fails: {int(act.weak_x.sum())} bounds and {int(act.weak_g.sum())} inequalities "
+            f"are weakly active (multiplier and slack both < {sc_tol:g}; variables {np.flatnonzero(act.weak_x)[:10]}, "
+            f"constraints {np.flatnonzero(act.weak_g)[:10]}): x*(p) is only directionally differentiable there and "
+            "the sensitivities are those of the identified active set",
+            StrictComplementarityWarning,
+            stacklevel=3,
+        )
+    return act
+
+
+# ----------------------------------------------------------------------------------------------
+# JAX pieces (cached per NLP)
+
+_JAX_CACHE: dict = {}
+
+
+def _jax_fns(nlp):
+    key = id(nlp)
+    hit = _JAX_CACHE.get(key)
+    if hit is not None and hit[0] is nlp:
+        return hit[1]
+
+    def grad_lag(x, lam, p):
+        return jax.grad(lambda xx: nlp.f(xx, p) + jnp.dot(lam, nlp.g(xx, p)))(x)
+
+    def rhs_jvp(x, lam, p, dp):
+        """(d_p grad_x L . dp, d_p g . dp) at fixed x, lam."""
+        _, (dgl, dg) = jax.jvp(lambda pp: (grad_lag(x, lam, pp), nlp.g(x, pp)), (p,), (dp,))
+        return dgl, dg
+
+    def pullback(x, lam, p, v_x, v_lam):
+        """grad_p [v_x . grad_x L + v_lam . g] at fixed x, lam (a pytree like p)."""
+        return jax.grad(lambda pp: jnp.dot(v_x, grad_lag(x, lam, pp)) + jnp.dot(v_lam, nlp.g(x, pp)))(p)
+
+    def lag_grad_p(x, lam, p):
+        """Envelope: grad_p L = grad_p f + lam . grad_p g at fixed x, lam."""
+        return jax.grad(lambda pp: nlp.f(x, pp) + jnp.dot(lam, nlp.g(x, pp)))(p)
+
+    def f_jvp(x, p, dx, dp):
+        return jax.jvp(nlp.f, (x, p), (dx, dp))[1]
+
+    fns = dict(
+        rhs_jvp=jax.jit(rhs_jvp),
+        pullback=jax.jit(pullback),
+        lag_grad_p=jax.jit(lag_grad_p),
+        f_jvp=jax.jit(f_jvp),
+        grad_lag=jax.jit(grad_lag),
+        g=jax.jit(nlp.g),
+        f=jax.jit(nlp.f),
+        jac=jax.jit(nlp.jac_values),
+        hess=jax.jit(nlp.hess_values),
+    )
+    _JAX_CACHE[key] = (nlp, fns)
+    return fns
+
+
+def _as_float_tree(p):
+    return jax.tree.map(lambda a: jnp.asarray(a, dtype=jnp.float64), p)
+
+
+def tree_vdot(a, b) -> float:
+    """<a, b> summed over the leaves of two pytrees of the same structure."""
+    return float(sum(np.vdot(np.asarray(u), np.asarray(v)) for u, v in zip(jax.tree.leaves(a), jax.tree.leaves(b))))
+
+
+def zeros_like_params(p):
+    return jax.tree.map(lambda a: jnp.zeros_like(jnp.asarray(a, dtype=jnp.float64)), p)
+
+
+# ----------------------------------------------------------------------------------------------
+# Goal as bounds
+
+
+def goal_bound_jacobians(problem) -> tuple[np.ndarray, np.ndarray]:
+    """(n, 5) derivatives dxl/dgoal, dxu/dgoal of the NLP bounds w.r.t. the goal posture.
+
+    The terminal box is max(Q_MIN, goal - tol) .. min(Q_MAX, goal + tol) (``bounds_full``): a
+    bound moves with the goal unless it is clipped by the joint range.
+    """
+    layout, goal = problem.layout, np.asarray(problem.task.goal, dtype=float)
+    tol = tasks_mod.GOAL_TOLERANCE
+    free = layout.free_mask()
+    idx = np.full(free.shape, -1)
+    idx[free] = np.arange(free.sum())
+    Dl, Du = np.zeros((problem.nlp.n, 5)), np.zeros((problem.nlp.n, 5))
+    for j in range(5):
+        i = idx[layout.N, j]
+        if i >= 0:
+            Dl[i, j] = float(goal[j] - tol > tasks_mod.Q_MIN[j])
+            Du[i, j] = float(goal[j] + tol < tasks_mod.Q_MAX[j])
+    return Dl, Du
+
+
+def bounds_for_goal(problem, goal) -> Bounds:
+    """The problem's bounds with the terminal goal box moved to ``goal``."""
+    lo, hi = tr.bounds_full(problem.layout, np.asarray(goal, dtype=float))
+    free = problem.layout.free_mask()
+    b = problem.bounds
+    return Bounds(x0=np.clip(b.x0, lo[free], hi[free]), xl=lo[free], xu=hi[free], gl=b.gl, gu=b.gu)
+
+
+# ----------------------------------------------------------------------------------------------
+# The factorised reduced KKT system
+
+
+class KKTSensitivity:
+    """Reduced KKT system at a converged point, factorised once; JVPs/VJPs reuse the factors.
+
+    ``KKTSensitivity(problem, result)`` or with explicit ``x, lam_g, z_l, z_u, p, bounds``.
+    """
+
+    def __init__(self, problem, result=None, *, x=None, lam_g=None, z_l=None, z_u=None, p=None, bounds=None, sc_tol: float = 1e-6, warn: bool = True, active: ActiveSet | None = None):
+        t0 = time.perf_counter()
+        self.problem = problem
+        nlp = problem.nlp
+        self.nlp = nlp
+        self.p = _as_float_tree(problem.p if p is None else p)
+        self.bounds = problem.bounds if bounds is None else bounds
+        self.x = np.asarray(result.x if x is None else x, dtype=float)
+        self.lam = np.asarray(result.lam_g if lam_g is None else lam_g, dtype=float)
+        self.z_l = np.asarray(result.z_l if z_l is None else z_l, dtype=float)
+        self.z_u = np.asarray(result.z_u if z_u is None else z_u, dtype=float)
+        fns = self.fns = _jax_fns(nlp)
+        self.g_val = np.asarray(fns["g"](self.x, self.p))
+        self.active = active if active is not None else identify_active_set(self.bounds, self.x, self.g_val, self.lam, self.z_l, self.z_u, sc_tol=sc_tol, warn=warn, ignore_bounds=implied_bounds(problem))
+        n, m = nlp.n, nlp.m
+        J = sp.csr_matrix((np.asarray(fns["jac"](self.x, self.p)), (nlp.jac_rows, nlp.jac_cols)), shape=(m, n))
+        Hl = sp.csr_matrix((np.asarray(fns["hess"](self.x, self.lam, 1.0, self.p)), (nlp.hess_rows, nlp.hess_cols)), shape=(n, n))
+        H = (Hl + Hl.T - sp.diags(Hl.diagonal())).tocsr()
+        self.J, self.H = J, H
+        self.F = np.flatnonzero(self.active.free)
+        self.B = np.flatnonzero(self.active.fixed)
+        self.C = np.flatnonzero(self.active.rows)
+        JCF = J[self.C][:, self.F]
+        self.K = sp.bmat([[H[self.F][:, self.F], JCF.T], [JCF, None]], format="csc")
+        self._HFB = H[self.F][:, self.B]
+        self._JCB = J[self.C][:, self.B]
+        nF, nC = self.F.size, self.C.size
+        if nC > nF:
+            raise np.linalg.LinAlgError(f"reduced KKT system: {nC} active constraints for {nF} free variables (LICQ fails)")
+        self.lu = spla.splu(self.K)
+        self.factor_time_s = time.perf_counter() - t0
+        # Stationarity residual of the KKT point (a check of the multiplier convention).
+        gl = np.asarray(fns["grad_lag"](self.x, self.lam, self.p))
+        self.stationarity = float(np.max(np.abs(gl - self.z_l + self.z_u))) if n else 0.0
+
+    # -- linear algebra -----------------------------------------------------------------------
+
+    def _solve(self, rhs):
+        sol = self.lu.solve(rhs)
+        return sol[: self.F.size], sol[self.F.size :]
+
+    def kkt_residual(self, rhs, sol) -> float:
+        """Relative residual of a reduced-KKT solve (conditioning check)."""
+        r = self.K @ sol - rhs
+        return float(np.linalg.norm(r) / max(np.linalg.norm(rhs), 1e-300))
+
+    # -- forward ------------------------------------------------------------------------------
+
+    def jvp(self, dp=None, dgoal=None, return_all: bool = False):
+        """dx* for a parameter tangent ``dp`` (pytree like p) and/or goal tangent ``dgoal`` (5,)."""
+        n, m = self.nlp.n, self.nlp.m
+        if dp is None:
+            r_x, r_g = np.zeros(n), np.zeros(m)
+        else:
+            dgl, dg = self.fns["rhs_jvp"](self.x, self.lam, self.p, _as_float_tree(dp))
+            r_x, r_g = np.asarray(dgl), np.asarray(dg)
+        dxB = np.zeros(self.B.size)
+        if dgoal is not None:
+            Dl, Du = goal_bound_jacobians(self.problem)
+            dxl, dxu = Dl @ np.asarray(dgoal, float), Du @ np.asarray(dgoal, float)
+            dxB = np.where(self.active.lower[self.B], dxl[self.B], dxu[self.B])
+        rhs = -np.concatenate([r_x[self.F] + self._HFB @ dxB, r_g[self.C] + self._JCB @ dxB])
+        dxF, dlamC = self._solve(rhs)
+        dx = np.zeros(n)
+        dx[self.F], dx[self.B] = dxF, dxB
+        if return_all:
+            dlam = np.zeros(m)
+            dlam[self.C] = dlamC
+            return dx, dlam
+        return dx
+
+    # -- reverse ------------------------------------------------------------------------------
+
+    def adjoint(self, ct_x):
+        """(v_x, v_lam) in full length (zeros off F / C): K [v_F; v_C] = [ct_F; 0]."""
+        ct_x = np.asarray(ct_x, dtype=float)
+        rhs = np.concatenate([ct_x[self.F], np.zeros(self.C.size)])
+        vF, vC = self._solve(rhs)
+        v_x, v_lam = np.zeros(self.nlp.n), np.zeros(self.nlp.m)
+        v_x[self.F], v_lam[self.C] = vF, vC
+        return v_x, v_lam
+
+    def vjp(self, ct_x, goal: bool = False):
+        """Cotangent of p (pytree like p) for a cotangent ``ct_x`` of x*; with ``goal=True`` also
+        the (5,) cotangent of the goal posture."""
+        ct_x = np.asarray(ct_x, dtype=float)
+        v_x, v_lam = self.adjoint(ct_x)
+        dp = jax.tree.map(lambda a: -np.asarray(a), self.fns["pullback"](self.x, self.lam, self.p, v_x, v_lam))
+        if not goal:
+            return dp
+        # total d loss / d x_B: direct + through the reduced system
+        ctB = ct_x[self.B] - (self._HFB.T @ v_x[self.F] + self._JCB.T @ v_lam[self.C])
+        Dl, Du = goal_bound_jacobians(self.problem)
+        D = np.where(self.active.lower[self.B][:, None], Dl[self.B], Du[self.B])
+        return dp, D.T @ ctB
+
+    # -- optimal value ------------------------------------------------------------------------
+
+    def objective_gradient(self, goal: bool = False):
+        """Envelope theorem: dV/dp = grad_p L(x*, lam*; p) (and dV/dgoal with ``goal=True``)."""
+        dp = jax.tree.map(np.asarray, self.fns["lag_grad_p"](self.x, self.lam, self.p))
+        if not goal:
+            return dp
+        Dl, Du = goal_bound_jacobians(self.problem)
+        return dp, Dl.T @ self.z_l - Du.T @ self.z_u
+
+    def objective_jvp(self, dp=None, dgoal=None, dx=None) -> float:
+        """dV along (dp, dgoal) by the chain rule d_x f . dx* + d_p f . dp (independent of the envelope)."""
+        if dx is None:
+            dx = self.jvp(dp, dgoal)
+        dpp = zeros_like_params(self.p) if dp is None else _as_float_tree(dp)
+        return float(self.fns["f_jvp"](self.x, self.p, jnp.asarray(dx), dpp))
+
+    def report(self) -> dict:
+        return {**self.active.summary(), "n_free": int(self.F.size), "kkt_size": int(self.K.shape[0]), "stationarity": self.stationarity, "factor_time_s": self.factor_time_s}
+
+
+# ----------------------------------------------------------------------------------------------
+# Functional API
+
+
+def solution_jvp(problem, result, dp, dgoal=None, **kw) -> np.ndarray:
+    """dx* = (dx*/dp) dp (+ dx*/dgoal dgoal) at a converged ``result`` of ``problem``."""
+    return KKTSensitivity(problem, result, **kw).jvp(dp, dgoal)
+
+
+def solution_vjp(problem, result, ct_x, goal: bool = False, **kw):
+    """ct_x^T dx*/dp as a pytree like p (and the goal cotangent with ``goal=True``)."""
+    return KKTSensitivity(problem, result, **kw).vjp(ct_x, goal=goal)
+
+
+def objective_gradient(problem, result, goal: bool = False, **kw):
+    """dV/dp of the optimal value by the envelope theorem."""
+    return KKTSensitivity(problem, result, **kw).objective_gradient(goal=goal)
+
+
+# ----------------------------------------------------------------------------------------------
+# IPOPT with a full primal-dual warm start
+
+
+WARM_OPTIONS = {
+    "warm_start_init_point": "yes",
+    "warm_start_bound_push": 1e-12,
+    "warm_start_bound_frac": 1e-12,
+    "warm_start_slack_bound_push": 1e-12,
+    "warm_start_slack_bound_frac": 1e-12,
+    "warm_start_mult_bound_push": 1e-12,
+    "mu_init": 1e-9,
+}
+
+
+def resolve(problem, p=None, bounds=None, warm=None, options: dict | None = None):
+    """IPOPT solve of ``problem`` at parameters ``p`` (default problem.p) and ``bounds``; ``warm`` an
+    NLPResult whose x and multipliers warm-start the solve (``WARM_OPTIONS``)."""
+    from jaxhumanoid.solvers.ipopt import DEFAULT_OPTIONS, SUCCESS, STATUS, _Callbacks, _finite_or_inf
+    from jaxhumanoid.solvers.result import NLPResult, constraint_violation
+
+    import cyipopt
+
+    nlp = problem.nlp
+    p = problem.p if p is None else p
+    bounds = problem.bounds if bounds is None else bounds
+    opts = dict(DEFAULT_OPTIONS)
+    opts.pop("file_print_level", None)
+    if warm is not None:
+        opts.update(WARM_OPTIONS)
+    opts.update(options or {})
+    x0 = np.clip(np.asarray(bounds.x0 if warm is None else warm.x, dtype=float), bounds.xl, bounds.xu)
+    cb = _Callbacks(nlp, p)
+    t0 = time.perf_counter()
+    prob = cyipopt.Problem(n=nlp.n, m=nlp.m, problem_obj=cb, lb=_finite_or_inf(bounds.xl, -1), ub=_finite_or_inf(bounds.xu, 1), cl=_finite_or_inf(bounds.gl, -1), cu=_finite_or_inf(bounds.gu, 1))
+    for key, val in opts.items():
+        prob.add_option(key, val)
+    if warm is not None:
+        x, info = prob.solve(x0, lagrange=np.asarray(warm.lam_g), zl=np.asarray(warm.z_l), zu=np.asarray(warm.z_u))
+    else:
+        x, info = prob.solve(x0)
+    dt = time.perf_counter() - t0
+    status = STATUS.get(int(info["status"]), f"Unknown_Status_{info['status']}")
+    return NLPResult(
+        x=np.asarray(x),
+        lam_g=np.asarray(info["mult_g"]),
+        z_l=np.asarray(info["mult_x_L"]),
+        z_u=np.asarray(info["mult_x_U"]),
+        status=status,
+        success=status in SUCCESS,
+        iterations=max(len(cb.history["objective"]) - 1, 0),
+        solve_time_s=dt,
+        compile_time_s=0.0,
+        objective=float(info["obj_val"]),
+        max_constraint_violation=constraint_violation(np.asarray(info["g"]), x, bounds.gl, bounds.gu, bounds.xl, bounds.xu),
+    )
+
+
+# ----------------------------------------------------------------------------------------------
+# JAX wrapper
+
+
+def make_solve(problem, result=None, options: dict | None = None, sc_tol: float = 1e-6, strict: bool = False):
+    """``solve(p) -> x*(p)``: an IPOPT solve inside ``jax.pure_callback``, differentiable by
+    ``jax.custom_vjp`` (reverse mode: ``jax.grad``/``jax.vjp`` of scalar losses of x*).
+
+    Every solve is warm-started (primal and dual) from the previous one (initially ``result``,
+    if given). ``strict=True`` raises when a solve fails; otherwise a failed solve warns.
+    ``solve.last`` holds the latest NLPResult, ``solve.stats`` counts solves and adjoints.
+    """
+    nlp = problem.nlp
+    fns = _jax_fns(nlp)
+    n, m = nlp.n, nlp.m
+    state = {"warm": result, "last": None}
+    stats = {"solves": 0, "adjoints": 0, "solve_time_s": 0.0, "adjoint_time_s": 0.0}
+    p_struct = jax.tree.structure(problem.p)
+    f64 = jnp.float64
+
+    def _solve_cb(p_np):
+        res = resolve(problem, p=p_np, warm=state["warm"], options=options)
+        if not res.success and state["warm"] is not None:
+            res = resolve(problem, p=p_np, warm=None, options=options)  # cold retry
+        if not res.success:
+            msg = f"make_solve: IPOPT returned {res.status}"
+            if strict:
+                raise RuntimeError(msg)
+            warnings.warn(msg, RuntimeWarning, stacklevel=2)
+        stats["solves"] += 1
+        stats["solve_time_s"] += res.solve_time_s
+        state["warm"] = state["last"] = res
+        return res.x, res.lam_g, res.z_l, res.z_u
+
+    def _adjoint_cb(x, lam, zl, zu, p_np, ct):
+        t0 = time.perf_counter()
+        kkt = KKTSensitivity(problem, x=x, lam_g=lam, z_l=zl, z_u=zu, p=p_np, sc_tol=sc_tol)
+        v_x, v_lam = kkt.adjoint(ct)
+        stats["adjoints"] += 1
+        stats["adjoint_time_s"] += time.perf_counter() - t0
+        return v_x, v_lam
+
+    shapes4 = (jax.ShapeDtypeStruct((n,), f64), jax.ShapeDtypeStruct((m,), f64), jax.ShapeDtypeStruct((n,), f64), jax.ShapeDtypeStruct((n,), f64))
+    shapes2 = shapes4[:2]
+
+    def _primal(p):
+        return jax.pure_callback(_solve_cb, shapes4, p, vmap_method="sequential")
+
+    @jax.custom_vjp
+    def solve(p):
+        return _primal(p)[0]
+
+    def fwd(p):
+        x, lam, zl, zu = _primal(p)
+        return x, (x, lam, zl, zu, p)
+
+    def bwd(res, ct):
+        x, lam, zl, zu, p = res
+        v_x, v_lam = jax.pure_callback(_adjoint_cb, shapes2, x, lam, zl, zu, p, ct, vmap_method="sequential")
+        dp = jax.grad(lambda pp: jnp.dot(v_x, fns["grad_lag"](x, lam, pp)) + jnp.dot(v_lam, nlp.g(x, pp)))(p)
+        return (jax.tree.map(lambda a: -a, dp),)
+
+    solve.defvjp(fwd, bwd)
+
+    def wrapped(p):
+        if jax.tree.structure(p) != p_struct:
+            raise ValueError("solve: p must have the structure of problem.p (an OCPParams)")
+        return solve(_as_float_tree(p))
+
+    wrapped.state = state
+    wrapped.stats = stats
+    return wrapped
+
+
+# ----------------------------------------------------------------------------------------------
+# Directions and finite-difference checks
+
+GROUPS = ("weights", "contact", "model", "horizon", "start")
+
+
+def param_direction(p, group: str, seed: int = 0):
+    """A tangent of p that moves one parameter group by relative amounts in [-1, 1] (random,
+    reproducible): weights (8), contact (kappa, f0, xhat, mu), model (a, c, m, inertia),
+    horizon (T), start (q_start, absolute radians). Everything else zero."""
+    rng = np.random.default_rng(seed)
+    dp = jax.tree.map(np.zeros_like, jax.tree.map(lambda a: np.asarray(a, dtype=float), p))
+
+    def rel(a):
+        a = np.asarray(a, dtype=float)
+        return a * rng.uniform(-1.0, 1.0, size=a.shape)
+
+    if group == "weights":
+        return dataclasses.replace(dp, weights=rel(p.weights))
+    if group == "contact":
+        c = p.contact
+        new = jax.tree.unflatten(jax.tree.structure(c), [rel(v) for v in jax.tree.leaves(c)])
+        return dataclasses.replace(dp, contact=new)
+    if group == "model":
+        mdl = p.model
+        d = jax.tree.unflatten(jax.tree.structure(mdl), [np.zeros_like(np.asarray(v, dtype=float)) for v in jax.tree.leaves(mdl)])
+        for name in ("a", "c", "m", "inertia"):
+            object.__setattr__(d, name, rel(getattr(mdl, name)))
+        return dataclasses.replace(dp, model=d)
+    if group == "horizon":
+        return dataclasses.replace(dp, T=rel(p.T))
+    if group == "start":
+        return dataclasses.replace(dp, q_start=rng.uniform(-1.0, 1.0, size=np.shape(p.q_start)))
+    raise ValueError(f"group: {group!r} not in {GROUPS}")
+
+
+def perturb(p, dp, t: float):
+    """p + t dp leaf by leaf (numpy leaves; validation bypassed as for any pytree map)."""
+    return jax.tree.map(lambda a, d: np.asarray(a, dtype=float) + t * np.asarray(d, dtype=float), p, dp)
+
+
+def fd_directional(problem, result, dp=None, dgoal=None, eps: float = 1e-5, options: dict | None = None):
+    """Central differences of warm-started IPOPT re-solves along (dp, dgoal).
+
+    Returns (dx_fd, dV_fd, (res_plus, res_minus)). ``options`` default to tol 1e-10.
+    """
+    opts = {"tol": 1e-10, "acceptable_iter": 0, "max_iter": 500, **(options or {})}
+    out = []
+    for t in (eps, -eps):
+        p = problem.p if dp is None else perturb(problem.p, dp, t)
+        b = problem.bounds if dgoal is None else bounds_for_goal(problem, np.asarray(problem.task.goal) + t * np.asarray(dgoal))
+        res = resolve(problem, p=p, bounds=b, warm=result, options=opts)
+        if not res.success:
+            raise RuntimeError(f"fd_directional: re-solve at t={t:g} returned {res.status}")
+        out.append(res)
+    dx = (out[0].x - out[1].x) / (2 * eps)
+    dV = (out[0].objective - out[1].objective) / (2 * eps)
+    return dx, dV, tuple(out)
+
+
+def rel_err(a, b) -> float:
+    """||a - b||_2 / max(||b||_2, tiny)."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    return float(np.linalg.norm(a - b) / max(np.linalg.norm(b), 1e-300))
