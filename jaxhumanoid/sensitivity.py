@@ -479,6 +479,22 @@ def resolve(problem, p=None, bounds=None, warm=None, options: dict | None = None
     )
 
 
+def resolve_robust(problem, p=None, bounds=None, warm=None, options: dict | None = None):
+    """``resolve`` with fall-backs: primal-dual warm start at mu 1e-9, then at mu 1e-4 (for large
+    parameter changes), then a cold start. Returns the first successful result (or the last)."""
+    tries = [dict(options or {})]
+    if warm is not None:
+        tries.append({**(options or {}), "mu_init": 1e-4, "warm_start_bound_push": 1e-6, "warm_start_mult_bound_push": 1e-6})
+    res = None
+    for opts in tries:
+        res = resolve(problem, p=p, bounds=bounds, warm=warm, options=opts)
+        if res.success:
+            return res
+    if warm is not None:
+        res = resolve(problem, p=p, bounds=bounds, warm=None, options=options)
+    return res
+
+
 # ----------------------------------------------------------------------------------------------
 # JAX wrapper
 
@@ -500,9 +516,7 @@ def make_solve(problem, result=None, options: dict | None = None, sc_tol: float 
     f64 = jnp.float64
 
     def _solve_cb(p_np):
-        res = resolve(problem, p=p_np, warm=state["warm"], options=options)
-        if not res.success and state["warm"] is not None:
-            res = resolve(problem, p=p_np, warm=None, options=options)  # cold retry
+        res = resolve_robust(problem, p=p_np, warm=state["warm"], options=options)
         if not res.success:
             msg = f"make_solve: IPOPT returned {res.status}"
             if strict:
@@ -538,7 +552,7 @@ def make_solve(problem, result=None, options: dict | None = None, sc_tol: float 
     def bwd(res, ct):
         x, lam, zl, zu, p = res
         v_x, v_lam = jax.pure_callback(_adjoint_cb, shapes2, x, lam, zl, zu, p, ct, vmap_method="sequential")
-        dp = jax.grad(lambda pp: jnp.dot(v_x, fns["grad_lag"](x, lam, pp)) + jnp.dot(v_lam, nlp.g(x, pp)))(p)
+        dp = fns["pullback"](x, lam, p, v_x, v_lam)
         return (jax.tree.map(lambda a: -a, dp),)
 
     solve.defvjp(fwd, bwd)
@@ -617,3 +631,107 @@ def rel_err(a, b) -> float:
     """||a - b||_2 / max(||b||_2, tiny)."""
     a, b = np.asarray(a, float), np.asarray(b, float)
     return float(np.linalg.norm(a - b) / max(np.linalg.norm(b), 1e-300))
+
+
+# ----------------------------------------------------------------------------------------------
+# Command line: agreement table and cost
+
+
+def check_against_fd(task="T1", scheme="A,F+C,1S", N=15, T=5.0, eps=1e-5, seed=1, groups=GROUPS + ("goal",), verbose=True) -> dict:
+    """Directional derivatives of x* and V* against central differences of warm re-solves, and
+    the cost of a sensitivity relative to a solve. Returns a JSON-able dict."""
+    from jaxhumanoid.solvers.ipopt import solve_ipopt
+    from jaxhumanoid.strategy.problem import build_problem
+
+    prob = build_problem(task, scheme, N=N, T=T)
+    res = solve_ipopt(prob.nlp, prob.p, prob.bounds, options={"tol": 1e-10, "max_iter": 3000})
+    if not res.success:
+        raise RuntimeError(f"reference solve failed: {res.status}")
+    KKTSensitivity(prob, res)  # compile
+    t0 = time.perf_counter()
+    kkt = KKTSensitivity(prob, res)
+    t_factor = time.perf_counter() - t0
+    rows = []
+    for group in groups:
+        if group == "goal":
+            dp, dgoal = None, np.random.default_rng(seed).uniform(-1, 1, 5)
+        else:
+            dp, dgoal = param_direction(prob.p, group, seed=seed), None
+        kkt.jvp(dp, dgoal)  # compile
+        t0 = time.perf_counter()
+        dx = kkt.jvp(dp, dgoal)
+        t_jvp = time.perf_counter() - t0
+        dx_fd, dV_fd, rr = fd_directional(prob, res, dp, dgoal, eps=eps)
+        g_env = kkt.objective_gradient(goal=True)
+        dV_env = (tree_vdot(g_env[0], dp) if dp is not None else 0.0) + (float(g_env[1] @ dgoal) if dgoal is not None else 0.0)
+        dV_chain = kkt.objective_jvp(dp, dgoal, dx=dx)
+        row = {
+            "group": group,
+            "norm_dx": float(np.linalg.norm(dx)),
+            "rel_err_dx_2norm": rel_err(dx, dx_fd),
+            "rel_err_dx_maxnorm": float(np.max(np.abs(dx - dx_fd)) / np.max(np.abs(dx_fd))),
+            "dV_envelope": dV_env,
+            "dV_chain": dV_chain,
+            "dV_fd": dV_fd,
+            "rel_err_dV_env_fd": abs(dV_env - dV_fd) / abs(dV_fd),
+            "rel_err_dV_env_chain": abs(dV_env - dV_chain) / abs(dV_env),
+            "jvp_time_s": t_jvp,
+            "warm_resolve_iters": [r.iterations for r in rr],
+            "warm_resolve_time_s": float(np.mean([r.solve_time_s for r in rr])),
+        }
+        rows.append(row)
+    ct = np.random.default_rng(seed).normal(size=prob.nlp.n)
+    kkt.vjp(ct)
+    t0 = time.perf_counter()
+    kkt.vjp(ct)
+    t_vjp = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    kkt.objective_gradient()
+    t_env = time.perf_counter() - t0
+    out = {
+        "task": prob.task.key, "scheme": scheme, "N": N, "n": prob.nlp.n, "m": prob.nlp.m, "eps": eps,
+        "active_set": kkt.report(),
+        "rows": rows,
+        "cost": {
+            "cold_solve_time_s": res.solve_time_s, "cold_solve_iters": res.iterations,
+            "factorisation_time_s": t_factor,
+            "jvp_time_s (after factorisation)": float(np.median([r["jvp_time_s"] for r in rows])),
+            "vjp_time_s (after factorisation)": t_vjp,
+            "envelope_gradient_time_s": t_env,
+            "warm_resolve_time_s": float(np.mean([r["warm_resolve_time_s"] for r in rows])),
+        },
+    }
+    c = out["cost"]
+    c["ratio_(factor+jvp)/cold_solve"] = (t_factor + c["jvp_time_s (after factorisation)"]) / res.solve_time_s
+    c["ratio_(factor+vjp)/cold_solve"] = (t_factor + t_vjp) / res.solve_time_s
+    c["ratio_(factor+jvp)/warm_resolve"] = (t_factor + c["jvp_time_s (after factorisation)"]) / c["warm_resolve_time_s"]
+    if verbose:
+        print(f"{task} {scheme} N={N}: n={prob.nlp.n} m={prob.nlp.m}; active set {kkt.report()}")
+        print(f"{'group':>8} {'|dx|':>10} {'err dx 2n':>10} {'err dx inf':>10} {'dV env':>14} {'dV chain':>14} {'dV fd':>14} {'err env/fd':>10}")
+        for r in rows:
+            print(f"{r['group']:>8} {r['norm_dx']:10.3e} {r['rel_err_dx_2norm']:10.2e} {r['rel_err_dx_maxnorm']:10.2e} {r['dV_envelope']:14.8e} {r['dV_chain']:14.8e} {r['dV_fd']:14.8e} {r['rel_err_dV_env_fd']:10.2e}")
+        for k, v in c.items():
+            print(f"  {k}: {v:.4g}")
+    return out
+
+
+def main(argv=None):
+    import argparse
+    import json
+
+    ap = argparse.ArgumentParser(description="KKT sensitivities vs finite differences of re-solves")
+    ap.add_argument("--task", default="T1")
+    ap.add_argument("--scheme", default="A,F+C,1S")
+    ap.add_argument("--N", type=int, default=15)
+    ap.add_argument("--eps", type=float, default=1e-5)
+    ap.add_argument("--json", default=None)
+    a = ap.parse_args(argv)
+    out = check_against_fd(a.task, a.scheme, a.N, eps=a.eps)
+    if a.json:
+        with open(a.json, "w") as fh:
+            json.dump(out, fh, indent=1)
+    return out
+
+
+if __name__ == "__main__":
+    main()

@@ -14,7 +14,14 @@ from jaxhumanoid.solvers.ipm import IPMOptions, batch_solve_ipm, solve_ipm
 F_TOL = {"hs013": 5e-3}
 
 
-@pytest.mark.parametrize("name", sorted(tp.HS_PROBLEMS))
+# each problem is one XLA compilation (~10 s on 2 cores): the default run keeps three
+# representative ones (equality+bounds nonconvex, linear inequality QP, nonconvex inequality);
+# the rest run with ``-m slow``
+FAST_HS = ("hs071", "hs035", "hs010")
+
+
+@pytest.mark.parametrize("name", [n if n in FAST_HS else pytest.param(n, marks=pytest.mark.slow)
+                                  for n in sorted(tp.HS_PROBLEMS)])
 def test_hock_schittkowski_optimum(name):
     nlp, bounds, p, f_star = tp.HS_PROBLEMS[name]()
     r = solve_ipm(nlp, p, bounds)

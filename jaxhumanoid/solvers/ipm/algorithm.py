@@ -100,6 +100,7 @@ class State(NamedTuple):
     theta_min: jax.Array
     theta_max: jax.Array
     dw_last: jax.Array
+    n_perturbed: jax.Array
     n_acceptable: jax.Array
     tiny_count: jax.Array
     resto_iters: jax.Array
@@ -107,7 +108,8 @@ class State(NamedTuple):
 
 
 HIST_FIELDS = ("obj", "inf_pr", "inf_du", "mu", "d_norm", "reg", "alpha_du", "alpha_pr", "ls",
-               "kind", "compl", "resto_iters")
+               "kind", "compl", "resto_iters", "n_fact")
+INT_FIELDS = ("ls", "kind", "resto_iters", "n_fact")
 
 
 def _segsum(vals, idx, size):
@@ -287,9 +289,11 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         return clip(zl, dxl, P.hxl), clip(zu, dxu, P.hxu), clip(vl, dsl, P.hsl), clip(vu, dsu, P.hsu)
 
     # ---------------------------------------------------------------- inertia correction (IC)
-    def inertia_corrected_factor(P, Wvals, jac, sig_x, sig_s, dw_last, mu):
+    def inertia_corrected_factor(P, Wvals, jac, sig_x, sig_s, dw_last, mu, skip_zero):
         """Algorithm IC (Sec. 3.1): smallest delta_w (and delta_c if K is singular) giving inertia
-        (n, m, 0); a single traced factorisation inside one while_loop (first pass: no shift)."""
+        (n, m, 0); a single traced factorisation inside one while_loop. The first pass has no
+        shift, unless ``skip_zero`` (IPOPT's degenerate-Hessian heuristic: after
+        ``degen_iters_max`` consecutive perturbed iterations, start from kappa_w^- delta_w_last)."""
         dw1 = jnp.where(dw_last == 0.0, o.first_hessian_perturbation,
                         jnp.maximum(o.min_hessian_perturbation, o.perturb_dec_fact * dw_last))
         inc = jnp.where(dw_last == 0.0, o.perturb_inc_fact_first, o.perturb_inc_fact)
@@ -308,17 +312,18 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
             fac_ = fac_._replace(npos=fac_.npos.astype(jnp.int64), nneg=fac_.nneg.astype(jnp.int64),
                                  nzero=fac_.nzero.astype(jnp.int64))
             ok = kkt.inertia_ok(st, fac_)
-            first = t == 0
-            dc_n = jnp.where(first, jnp.where(fac_.nzero > 0, o.jacobian_regularization_value
-                                              * mu ** o.jacobian_regularization_exponent, 0.0), dc)
+            first = (t == 0) & ~skip_zero
+            dc_n = jnp.where((dc == 0.0) & (fac_.nzero > 0), o.jacobian_regularization_value
+                             * mu ** o.jacobian_regularization_exponent, dc)
             dw_n = jnp.where(ok, dw, jnp.where(first, dw1, inc * dw))
             dc_n = jnp.where(ok, dc, dc_n)
             return ok, dw_n, dc_n, t + 1, A_, B_, fac_, inv_s_
 
         ok, dw, dc, trials, A, B, fac, inv_s = lax.while_loop(
-            cond, body, (jnp.zeros((), bool), zero, zero, jnp.zeros((), jnp.int32), z3, z3, fac0, jnp.zeros(m)))
+            cond, body, (jnp.zeros((), bool), jnp.where(skip_zero, dw1, 0.0), zero, jnp.zeros((), jnp.int32),
+                         z3, z3, fac0, jnp.zeros(m)))
         new_dw_last = jnp.where(ok & (dw > 0), dw, dw_last)
-        return A, B, fac, inv_s, ok, dw, dc, new_dw_last
+        return A, B, fac, inv_s, ok, dw, dc, new_dw_last, trials
 
     # ---------------------------------------------------------------- least-squares multipliers
     def ls_multipliers(P, it, ev):
@@ -416,7 +421,7 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
                 ok = jnp.isfinite(pt) & (pt <= psi0 + 1e-4 * a * jnp.minimum(dpsi, 0.0))
                 return jnp.where(ok, a, 0.5 * a), ok, t + 1, (ft, gt)
 
-            a, ok, _, (ft, gt) = lax.while_loop(ls_cond, ls_body, (amax, jnp.zeros((), bool), jnp.zeros((), jnp.int32), evaluate(P, x)))
+            a, ok, _, (ft, gt) = lax.while_loop(ls_cond, ls_body, (amax, jnp.zeros((), bool), jnp.zeros((), jnp.int32), (R.f, R.g)))
             xn = jnp.where(ok, x + a * dx, x)
             sn = jnp.where(ok, s + a * ds, s)
             fn = jnp.where(ok, ft, R.f)
@@ -461,7 +466,10 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         # A-4: search direction with inertia correction
         Wvals = hessian(P, it.x, it.y)
         sig_x, sig_s = sigmas(P, it)
-        A, B, fac, inv_s, ok_step, dw, dc, dw_last = inertia_corrected_factor(P, Wvals, ev.jac, sig_x, sig_s, S.dw_last, mu)
+        skip_zero = S.n_perturbed >= o.degen_iters_max
+        A, B, fac, inv_s, ok_step, dw, dc, dw_last, n_fact = inertia_corrected_factor(
+            P, Wvals, ev.jac, sig_x, sig_s, S.dw_last, mu, skip_zero)
+        n_perturbed = jnp.where(dw > 0, S.n_perturbed + 1, 0).astype(jnp.int32)
         gx, gs = barrier_grad(P, ev.grad, it.x, it.s, mu)
         rx = gx + jt_mult(ev.jac, it.y)
         rs = jnp.where(P.hsl | P.hsu, gs - it.y, 0.0)
@@ -628,8 +636,9 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         tiny_count = jnp.where(tiny, S.tiny_count + 1, 0).astype(jnp.int32)
         step_info = dict(mu=mu, d_norm=jnp.max(jnp.abs(DX), initial=0.0), reg=dw,
                          alpha_du=jnp.where(accepted, a_du, 0.0), alpha_pr=jnp.where(accepted, a_pr, 0.0),
-                         ls=n_trials, kind=kind, resto_iters=S.resto_iters + rj)
+                         ls=n_trials, kind=kind, resto_iters=S.resto_iters + rj, n_fact=n_fact)
         S_next = S_next._replace(it=it_next, ev=ev_next, mu=mu, dw_last=dw_last, tiny_count=tiny_count,
+                                 n_perturbed=n_perturbed,
                                  resto_iters=S.resto_iters + rj, k=S.k + 1)
         return S_next, status, step_info
 
@@ -650,7 +659,7 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
                       jnp.where(conv, 1,
                                 jnp.where((n_acc >= o.acceptable_iter) & (o.acceptable_iter > 0), 2,
                                           jnp.where(tiny_stop, jnp.where(acc_pt, 2, 8),
-                                                    jnp.where(k >= o.max_iter, jnp.where(acc_pt, 2, 3), 0))))))
+                                                    jnp.where(k >= o.max_iter, 3, 0))))))
         hist = S.hist
         if o.keep_history:
             row = dict(obj=S.ev.f / P.sf, inf_pr=err["pr_u"], inf_du=err["dual"], compl=err["compl"], **step_info)
@@ -704,7 +713,7 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
                      jnp.where(hsl, bm, 0.0), jnp.where(hsu, bm, 0.0))
         it = it._replace(y=ls_multipliers(P, it, ev))
         theta0 = theta_of(P, g, s)
-        hist = {key: jnp.zeros(H if o.keep_history else 1, dtype=jnp.int32 if key in ("ls", "kind", "resto_iters") else float)
+        hist = {key: jnp.zeros(H if o.keep_history else 1, dtype=jnp.int32 if key in INT_FIELDS else float)
                 for key in HIST_FIELDS}
         S = State(it=it, ev=ev, mu=jnp.asarray(o.mu_init, float), k=jnp.zeros((), jnp.int32),
                   done=jnp.zeros((), bool), status=jnp.zeros((), jnp.int32),
@@ -712,11 +721,11 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
                   filt_n=jnp.zeros((), jnp.int32),
                   theta_min=o.theta_min_fact * jnp.maximum(1.0, theta0),
                   theta_max=o.theta_max_fact * jnp.maximum(1.0, theta0),
-                  dw_last=jnp.zeros(()), n_acceptable=jnp.zeros((), jnp.int32), tiny_count=jnp.zeros((), jnp.int32),
+                  dw_last=jnp.zeros(()), n_perturbed=jnp.zeros((), jnp.int32), n_acceptable=jnp.zeros((), jnp.int32), tiny_count=jnp.zeros((), jnp.int32),
                   resto_iters=jnp.zeros((), jnp.int32), hist=hist)
         info0 = dict(mu=S.mu, d_norm=jnp.zeros(()), reg=jnp.zeros(()), alpha_du=jnp.zeros(()),
                      alpha_pr=jnp.zeros(()), ls=jnp.zeros((), jnp.int32), kind=jnp.zeros((), jnp.int32),
-                     resto_iters=jnp.zeros((), jnp.int32))
+                     resto_iters=jnp.zeros((), jnp.int32), n_fact=jnp.zeros((), jnp.int32))
         S = record_and_check(P, S, info0, jnp.zeros((), jnp.int32))
 
         def body(S):

@@ -345,9 +345,10 @@ def from_blocks(st: KKTStructure, u):
 def solve(st: KKTStructure, fac: Factor, A, B, rx, rc, refinement_steps: int = 1):
     """(dx, dy) solving K [dx; dy] = [rx; rc], with ``refinement_steps`` of iterative refinement."""
     r = to_blocks(st, rx, rc)
-    u = _solve_vec(fac, r)
-    for _ in range(refinement_steps):
-        u = u + _solve_vec(fac, r - matvec(A, B, u))
+    # u_0 = 0; u_{i+1} = u_i + K^{-1}(r - K u_i): the first pass is the plain solve, the others
+    # are iterative refinement; one traced solve keeps the compiled program small
+    u = lax.fori_loop(0, refinement_steps + 1, lambda i, u: u + _solve_vec(fac, r - matvec(A, B, u)),
+                      jnp.zeros_like(r))
     return from_blocks(st, u)
 
 

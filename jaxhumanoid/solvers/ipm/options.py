@@ -73,6 +73,7 @@ class IPMOptions:
     jacobian_regularization_value: float = 1e-8
     jacobian_regularization_exponent: float = 0.25
     max_inertia_trials: int = 60
+    degen_iters_max: int = 3        # consecutive perturbed iterations before the delta_w = 0 trial is skipped
     # linear algebra
     iterative_refinement_steps: int = 1
     # feasibility restoration (Sec. 3.3, simplified: see algorithm.restoration)
@@ -102,7 +103,7 @@ _POSITIVE = (
 )
 _OPEN_UNIT = ("kappa_mu", "tau_min", "perturb_dec_fact", "kappa_soc", "kappa_resto",
               "required_infeasibility_reduction")
-_NONNEG_INT = ("acceptable_iter", "max_soc", "iterative_refinement_steps", "print_level")
+_NONNEG_INT = ("acceptable_iter", "max_soc", "iterative_refinement_steps", "print_level", "degen_iters_max")
 _POS_INT = ("max_iter", "max_ls_trials", "filter_size", "max_inertia_trials", "max_resto_iter")
 SCALING_METHODS = ("gradient-based", "none")
 
