@@ -17,6 +17,14 @@ checked: every active multiplier must be above ``sc_tol`` and every inactive sla
 differentiable and the sensitivities below are those of the fixed active set). A warning is
 issued when it fails.
 
+Two degeneracies of this transcription are handled explicitly. (i) Under scheme A the bounds of
+the contact-force variables are implied by the contact-law equalities (``implied_bounds``) and are
+never taken as active (for a contact in the air IPOPT reports barrier artefacts z_l = mu/1e-8
+there). (ii) LICQ fails at foot lift-off (all five steady-foot constraints active with a vanishing
+foot reaction): active inequality rows whose gradients depend on the others are dropped
+(``_dependent_active_rows``, dense pivoted QR) and their first-order consistency is reported
+(``KKTSensitivity.dropped_residual``).
+
 Reduced KKT system (second-order sufficiency + LICQ make it nonsingular):
 
     [ H_FF   J_CF^T ] [ dx_F   ]     [ d_p(grad_x L)_F dp + H_FB dx_B ]
@@ -275,6 +283,36 @@ def bounds_for_goal(problem, goal) -> Bounds:
     return Bounds(x0=np.clip(b.x0, lo[free], hi[free]), xl=lo[free], xu=hi[free], gl=b.gl, gu=b.gu)
 
 
+def _dependent_active_rows(J, F, active: ActiveSet, tol: float = 1e-9) -> np.ndarray:
+    """Active inequality rows whose gradients (on the free variables) depend linearly on the
+    equality rows and on the other active inequalities (LICQ failure), to be dropped.
+
+    Seen at foot lift-off: the five steady-foot constraints (5) are all active when the foot
+    reaction vanishes (f_n0 = f_t0 = u_1 = 0) and their gradients span only three directions.
+    The dropped rows hold to first order automatically when the linearisation is consistent
+    (``KKTSensitivity.dropped_residual`` reports it); their multiplier sensitivities are set to 0.
+    Dense QR on the active rows (fine up to a few thousand rows).
+    """
+    import scipy.linalg as sla
+
+    ineq = np.flatnonzero(active.ineq_active)
+    if ineq.size == 0:
+        return np.array([], dtype=np.int64)
+    eq = np.flatnonzero(active.rows & ~active.ineq_active)
+    JF = J[:, F]
+    A_i = JF[ineq].toarray().T
+    A_i = A_i / np.maximum(np.linalg.norm(A_i, axis=0), 1e-300)
+    if eq.size:
+        A_e = JF[eq].toarray().T
+        A_e = A_e / np.maximum(np.linalg.norm(A_e, axis=0), 1e-300)
+        Q, _ = np.linalg.qr(A_e)
+        A_i = A_i - Q @ (Q.T @ A_i)
+    _, R, piv = sla.qr(A_i, mode="economic", pivoting=True)
+    d = np.abs(np.diag(R))
+    rank = int(np.sum(d > tol * max(1.0, d.max(initial=0.0)))) if d.size else 0
+    return np.sort(ineq[piv[rank:]]).astype(np.int64)
+
+
 # ----------------------------------------------------------------------------------------------
 # The factorised reduced KKT system
 
@@ -285,7 +323,7 @@ class KKTSensitivity:
     ``KKTSensitivity(problem, result)`` or with explicit ``x, lam_g, z_l, z_u, p, bounds``.
     """
 
-    def __init__(self, problem, result=None, *, x=None, lam_g=None, z_l=None, z_u=None, p=None, bounds=None, sc_tol: float = 1e-6, warn: bool = True, active: ActiveSet | None = None):
+    def __init__(self, problem, result=None, *, x=None, lam_g=None, z_l=None, z_u=None, p=None, bounds=None, sc_tol: float = 1e-6, warn: bool = True, active: ActiveSet | None = None, dep_tol: float = 1e-9):
         t0 = time.perf_counter()
         self.problem = problem
         nlp = problem.nlp
@@ -306,7 +344,10 @@ class KKTSensitivity:
         self.J, self.H = J, H
         self.F = np.flatnonzero(self.active.free)
         self.B = np.flatnonzero(self.active.fixed)
-        self.C = np.flatnonzero(self.active.rows)
+        self.dropped = _dependent_active_rows(J, self.F, self.active, dep_tol)
+        rows = self.active.rows.copy()
+        rows[self.dropped] = False
+        self.C = np.flatnonzero(rows)
         JCF = J[self.C][:, self.F]
         self.K = sp.bmat([[H[self.F][:, self.F], JCF.T], [JCF, None]], format="csc")
         self._HFB = H[self.F][:, self.B]
@@ -314,10 +355,18 @@ class KKTSensitivity:
         nF, nC = self.F.size, self.C.size
         if nC > nF:
             raise np.linalg.LinAlgError(f"reduced KKT system: {nC} active constraints for {nF} free variables (LICQ fails)")
-        self.lu = spla.splu(self.K)
+        try:
+            self.lu = spla.splu(self.K)
+        except RuntimeError as err:
+            raise np.linalg.LinAlgError(
+                f"reduced KKT matrix ({self.K.shape[0]}x{self.K.shape[0]}, {nF} free variables, {nC} active constraints) is singular: "
+                f"LICQ or second-order sufficiency fails at the identified active set ({err}); redundant bounds may need "
+                "to go into ignore_bounds (see implied_bounds)"
+            ) from err
         self.factor_time_s = time.perf_counter() - t0
         # Stationarity residual of the KKT point (a check of the multiplier convention).
         gl = np.asarray(fns["grad_lag"](self.x, self.lam, self.p))
+        self.dropped_residual = 0.0
         self.stationarity = float(np.max(np.abs(gl - self.z_l + self.z_u))) if n else 0.0
 
     # -- linear algebra -----------------------------------------------------------------------
@@ -350,6 +399,10 @@ class KKTSensitivity:
         dxF, dlamC = self._solve(rhs)
         dx = np.zeros(n)
         dx[self.F], dx[self.B] = dxF, dxB
+        if self.dropped.size:
+            # the dropped (dependent) active rows must hold to first order as well
+            lin = self.J[self.dropped] @ dx + r_g[self.dropped]
+            self.dropped_residual = float(np.max(np.abs(lin)) / max(np.max(np.abs(dx)), 1e-300))
         if return_all:
             dlam = np.zeros(m)
             dlam[self.C] = dlamC
@@ -399,7 +452,7 @@ class KKTSensitivity:
         return float(self.fns["f_jvp"](self.x, self.p, jnp.asarray(dx), dpp))
 
     def report(self) -> dict:
-        return {**self.active.summary(), "n_free": int(self.F.size), "kkt_size": int(self.K.shape[0]), "stationarity": self.stationarity, "factor_time_s": self.factor_time_s}
+        return {**self.active.summary(), "n_dependent_dropped": int(self.dropped.size), "n_free": int(self.F.size), "kkt_size": int(self.K.shape[0]), "stationarity": self.stationarity, "factor_time_s": self.factor_time_s}
 
 
 # ----------------------------------------------------------------------------------------------
@@ -495,16 +548,48 @@ def resolve_robust(problem, p=None, bounds=None, warm=None, options: dict | None
     return res
 
 
+REFERENCE_FALLBACKS = (
+    {},
+    {"mu_strategy": "adaptive"},
+    {"mu_init": 1e-2},
+    {"bound_push": 1e-4, "bound_frac": 1e-4},
+    {"mu_strategy": "adaptive", "mu_init": 1e-3},
+)
+
+
+def reference_solve(problem, tol: float = 1e-10, max_iter: int = 3000, verbose: bool = False):
+    """A tightly converged cold solve for sensitivity work, with option fall-backs.
+
+    Observed: the cold 1S solve of small problems (T1, N = 15) is reproducible within a process
+    but not across processes (the same options gave Solve_Succeeded in 99 or 220 iterations, or
+    Infeasible_Problem_Detected); the fall-backs make the reference solve robust to that.
+    Returns the first successful NLPResult with ``history['attempt']`` set.
+    """
+    from jaxhumanoid.solvers.ipopt import solve_ipopt
+
+    res = None
+    for k, extra in enumerate(REFERENCE_FALLBACKS):
+        res = solve_ipopt(problem.nlp, problem.p, problem.bounds, options={"tol": tol, "max_iter": max_iter, **extra})
+        if verbose:
+            print(f"reference solve attempt {k} {extra}: {res.status}, {res.iterations} its, f = {res.objective:.6g}")
+        if res.success:
+            res.history = {**(res.history or {}), "attempt": k}
+            return res
+    raise RuntimeError(f"reference_solve: every attempt failed (last: {res.status})")
+
+
 # ----------------------------------------------------------------------------------------------
 # JAX wrapper
 
 
-def make_solve(problem, result=None, options: dict | None = None, sc_tol: float = 1e-6, strict: bool = False):
+def make_solve(problem, result=None, options: dict | None = None, sc_tol: float = 1e-6, strict: bool = False, warm_from: str = "last"):
     """``solve(p) -> x*(p)``: an IPOPT solve inside ``jax.pure_callback``, differentiable by
     ``jax.custom_vjp`` (reverse mode: ``jax.grad``/``jax.vjp`` of scalar losses of x*).
 
-    Every solve is warm-started (primal and dual) from the previous one (initially ``result``,
-    if given). ``strict=True`` raises when a solve fails; otherwise a failed solve warns.
+    Every solve is warm-started (primal and dual) from the previous one (``warm_from="last"``,
+    initially ``result``) or always from ``result`` (``warm_from="initial"``: keeps the solves on
+    the branch of local optima through ``result``; the OCP has several local optima and a long
+    step can make a warm start jump to another one). ``strict=True`` raises when a solve fails; otherwise a failed solve warns.
     ``solve.last`` holds the latest NLPResult, ``solve.stats`` counts solves and adjoints.
     """
     nlp = problem.nlp
@@ -524,7 +609,9 @@ def make_solve(problem, result=None, options: dict | None = None, sc_tol: float 
             warnings.warn(msg, RuntimeWarning, stacklevel=2)
         stats["solves"] += 1
         stats["solve_time_s"] += res.solve_time_s
-        state["warm"] = state["last"] = res
+        state["last"] = res
+        if warm_from == "last" or state["warm"] is None:
+            state["warm"] = res
         return res.x, res.lam_g, res.z_l, res.z_u
 
     def _adjoint_cb(x, lam, zl, zu, p_np, ct):
@@ -640,13 +727,10 @@ def rel_err(a, b) -> float:
 def check_against_fd(task="T1", scheme="A,F+C,1S", N=15, T=5.0, eps=1e-5, seed=1, groups=GROUPS + ("goal",), verbose=True) -> dict:
     """Directional derivatives of x* and V* against central differences of warm re-solves, and
     the cost of a sensitivity relative to a solve. Returns a JSON-able dict."""
-    from jaxhumanoid.solvers.ipopt import solve_ipopt
     from jaxhumanoid.strategy.problem import build_problem
 
     prob = build_problem(task, scheme, N=N, T=T)
-    res = solve_ipopt(prob.nlp, prob.p, prob.bounds, options={"tol": 1e-10, "max_iter": 3000})
-    if not res.success:
-        raise RuntimeError(f"reference solve failed: {res.status}")
+    res = reference_solve(prob, verbose=verbose)
     KKTSensitivity(prob, res)  # compile
     t0 = time.perf_counter()
     kkt = KKTSensitivity(prob, res)

@@ -1,16 +1,25 @@
 """Derivatives of one interval's constraints and Lagrangian, evaluated for all intervals at once.
 
-The local functions are c(w, p) -> (n_con,) and l(w, p, last) -> scalar of the local vector w in
-R^{nw}. Their patterns are detected once (``sparsity``); values come from compressed evaluation
-with seeds of a colouring of the *local* pattern (``compressed.stage_jacobian`` /
-``stage_hessian``), vmapped over the intervals.
+The interval's constraints are c(r, p) of its midpoint variables r = M w, with w = (Z[k], Z[k+1])
+and M constant (``ocp.transcription.midpoint_map``); its cost l(w, p, last) is quadratic in w.
+Derivatives are taken in r, where the nonlinear dependence is concentrated in few variables, with
+compressed evaluation (seeds from a distance-2 column colouring of the local Jacobian pattern and
+a star colouring of the local Hessian pattern, ``compressed.stage_jacobian``/``stage_hessian``),
+vmapped over the intervals, and mapped back to w by the chain rule:
+
+    dc/dw = (dc/dr) M,        d2(lam.c)/dw2 = M^T (d2(lam.c)/dr2) M,
+
+each as a precomputed gather + segment-sum from the r-values to the entries of the w-pattern.
+The cost's (constant-pattern) Hessian is added in w directly.
 """
 
 from __future__ import annotations
 
 import dataclasses
+from collections import defaultdict
 from typing import Callable
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -19,7 +28,7 @@ from jaxhumanoid.derivatives import colouring, compressed, sparsity
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class LocalDerivatives:
-    jac_rows: np.ndarray
+    jac_rows: np.ndarray  # local pattern in w
     jac_cols: np.ndarray
     hess_rows: np.ndarray  # lower triangle, rows >= cols
     hess_cols: np.ndarray
@@ -29,24 +38,77 @@ class LocalDerivatives:
     n_hess_colours: int
 
 
-def local_derivatives(con, cost, nw: int, p_example, seed: int = 0) -> LocalDerivatives:
-    """Local patterns (union over random points, both values of ``last``) and their evaluators."""
+def _chain(entries: dict):
+    """Targets (sorted pattern), and (target index, source index, coefficient) triplets."""
+    keys = sorted(entries)
+    tgt, src, coef = [], [], []
+    for t, key in enumerate(keys):
+        for s_idx, c in entries[key]:
+            tgt.append(t)
+            src.append(s_idx)
+            coef.append(c)
+    rows = np.array([k[0] for k in keys], dtype=np.int64)
+    cols = np.array([k[1] for k in keys], dtype=np.int64)
+    return rows, cols, np.array(tgt, dtype=np.int64), np.array(src, dtype=np.int64), np.array(coef)
 
-    def lagrangian(w, lam, sigma, last, p):
-        return sigma * cost(w, p, last) + jnp.dot(lam, con(w, p))
 
-    jr, jc = sparsity.jacobian_sparsity(con, nw, p_example, seed=seed)
+def local_derivatives(con_r, M: np.ndarray, cost, p_example, seed: int = 0) -> LocalDerivatives:
+    """Local patterns (union over random points) and evaluators of the interval derivatives."""
+    nr, nw = M.shape
+    Mj = jnp.asarray(M)
+    col_of = [np.flatnonzero(M[i]) for i in range(nr)]
+
+    def lag_r(r, lam, p):
+        return jnp.dot(lam, con_r(r, p))
+
+    # Jacobian in r, mapped to w.
+    jr, jc = sparsity.jacobian_sparsity(con_r, nr, p_example, seed=seed)
     n_con = int(jr.max()) + 1
-    lam = jnp.asarray(np.random.default_rng(seed).normal(size=n_con))
-    pats = [
-        sparsity.hessian_sparsity(lagrangian, nw, lam, 1.0, last, p_example, seed=seed + i)
-        for i, last in enumerate((False, True))
-    ]
-    mask = sparsity.pattern_to_dense(*pats[0], (nw, nw)) | sparsity.pattern_to_dense(*pats[1], (nw, nw))
-    hr, hc = sparsity.dense_to_pattern(np.tril(mask))
+    entries = defaultdict(list)
+    for e, (row, i) in enumerate(zip(jr, jc)):
+        for a in col_of[i]:
+            entries[(row, a)].append((e, M[i, a]))
+    jw_rows, jw_cols, j_tgt, j_src, j_coef = _chain(entries)
+    jcol = colouring.colour_columns(jr, jc, (n_con, nr))
+    jac_r = compressed.stage_jacobian(con_r, jr, jc, nr, colouring=jcol, args_axes=(None,))
 
-    jcol = colouring.colour_columns(jr, jc, (n_con, nw))
-    hcol = colouring.star_colouring(hr, hc, nw)
-    jacobian = compressed.stage_jacobian(con, jr, jc, nw, colouring=jcol, args_axes=(None,))
-    hessian = compressed.stage_hessian(lagrangian, hr, hc, nw, colouring=hcol, args_axes=(0, None, 0, None))
-    return LocalDerivatives(jr, jc, hr, hc, jacobian, hessian, colouring.num_colours(jcol), colouring.num_colours(hcol))
+    # Hessian of lam.c in r (pattern union over two multiplier draws), mapped to w; plus the cost.
+    rng = np.random.default_rng(seed)
+    pats = [sparsity.hessian_sparsity(lag_r, nr, jnp.asarray(rng.normal(size=n_con)), p_example, seed=seed + k) for k in range(2)]
+    mask = sparsity.pattern_to_dense(*pats[0], (nr, nr)) | sparsity.pattern_to_dense(*pats[1], (nr, nr))
+    hr, hc = sparsity.dense_to_pattern(np.tril(mask))
+    cost_pats = [sparsity.hessian_sparsity(lambda w, p, last: cost(w, p, last), nw, p_example, last, seed=seed) for last in (False, True)]
+    cmask = sparsity.pattern_to_dense(*cost_pats[0], (nw, nw)) | sparsity.pattern_to_dense(*cost_pats[1], (nw, nw))
+    cr, cc = sparsity.dense_to_pattern(np.tril(cmask))
+
+    entries = defaultdict(list)
+    for e, (i, j) in enumerate(zip(hr, hc)):
+        for i2, j2 in ((i, j), (j, i)) if i != j else ((i, j),):
+            for a in col_of[i2]:
+                for b in col_of[j2]:
+                    if a >= b:
+                        entries[(a, b)].append((e, M[i2, a] * M[j2, b]))
+    for e, (a, b) in enumerate(zip(cr, cc)):
+        entries[(a, b)].append((hr.size + e, 1.0))
+    hw_rows, hw_cols, h_tgt, h_src, h_coef = _chain(entries)
+    hcol = colouring.star_colouring(hr, hc, nr)
+    ccol = colouring.star_colouring(cr, cc, nw)
+    hess_r = compressed.stage_hessian(lag_r, hr, hc, nr, colouring=hcol, args_axes=(0, None))
+    hess_cost = compressed.stage_hessian(lambda w, sigma, last, p: sigma * cost(w, p, last), cr, cc, nw, colouring=ccol, args_axes=(None, 0, None))
+
+    j_tgt_j, j_src_j, j_coef_j = jnp.asarray(j_tgt), jnp.asarray(j_src), jnp.asarray(j_coef)
+    h_tgt_j, h_src_j, h_coef_j = jnp.asarray(h_tgt), jnp.asarray(h_src), jnp.asarray(h_coef)
+    n_jw, n_hw = jw_rows.size, hw_rows.size
+
+    def jacobian(W, p):
+        vals = jac_r(W @ Mj.T, p)  # (K, nnz_r)
+        return jax.vmap(lambda v: jax.ops.segment_sum(v[j_src_j] * j_coef_j, j_tgt_j, num_segments=n_jw))(vals)
+
+    def hessian(W, lam, sigma, last, p):
+        vals = jnp.concatenate([hess_r(W @ Mj.T, lam, p), hess_cost(W, sigma, last, p)], axis=1)
+        return jax.vmap(lambda v: jax.ops.segment_sum(v[h_src_j] * h_coef_j, h_tgt_j, num_segments=n_hw))(vals)
+
+    return LocalDerivatives(
+        jw_rows, jw_cols, hw_rows, hw_cols, jacobian, hessian,
+        colouring.num_colours(jcol), colouring.num_colours(hcol) + colouring.num_colours(ccol),
+    )

@@ -34,13 +34,13 @@ def _free_index(layout: tr.Layout) -> np.ndarray:
 def _local_functions(layout: tr.Layout):
     s = layout.s
 
-    def con(w, p):
-        return tr.interval_constraints(layout, w[:s], w[s:], p)
+    def con_r(r, p):
+        return tr.interval_constraints_midpoint(layout, r, p)
 
     def cost(w, p, last):
         return tr.interval_cost(layout, w[:s], w[s:], p, last)
 
-    return con, cost
+    return con_r, cost
 
 
 def stagewise_nlp(layout: tr.Layout, p_example: tr.OCPParams, name: str = "ocp") -> NLP:
@@ -49,8 +49,8 @@ def stagewise_nlp(layout: tr.Layout, p_example: tr.OCPParams, name: str = "ocp")
     ``p_example`` is used only to detect the local sparsity patterns (at random local points).
     """
     N, s = layout.N, layout.s
-    con, cost = _local_functions(layout)
-    loc: LocalDerivatives = local_derivatives(con, cost, 2 * s, p_example)
+    con_r, cost = _local_functions(layout)
+    loc: LocalDerivatives = local_derivatives(con_r, tr.midpoint_map(layout), cost, p_example)
     fidx = _free_index(layout)
     n = int((fidx >= 0).sum())
     n_con = layout.n_con

@@ -126,37 +126,64 @@ def free_from_full(layout: Layout, Z):
     return jnp.asarray(Z).ravel()[np.flatnonzero(layout.free_mask().ravel())]
 
 
-def interval_constraints(layout: Layout, za, zb, p: OCPParams):
-    """Constraints of one interval from its two stages za = Z[k], zb = Z[k+1]. Shape (n_con,)."""
-    sl = layout.stage_slices()
+def midpoint_map(layout: Layout) -> np.ndarray:
+    """Constant matrix M with r = M (Z[k], Z[k+1]): the interval's midpoint variables
+
+        r = (qbar, qdbar, dq = q_{k+1} - q_k, dqd = qd_{k+1} - qd_k, u_k, f_k, q_{k+1})
+
+    Every constraint of the interval is a function of r. In r the nonlinear dependence sits in
+    (qbar, qdbar) (and q_{k+1} for clearance) only, so derivative sweeps need about half the
+    seeds they need in (Z[k], Z[k+1]), where q_k and q_{k+1} act through qbar together.
+    """
+    s, nf = layout.s, layout.n_f
+    M = np.zeros((25 + nf + 5, 2 * s))
+    I = np.eye(5)
+    q0, qd0, u, f = slice(0, 5), slice(5, 10), slice(10, 15), slice(15, 15 + nf)
+    q1, qd1 = slice(s, s + 5), slice(s + 5, s + 10)
+    M[0:5, q0], M[0:5, q1] = 0.5 * I, 0.5 * I
+    M[5:10, qd0], M[5:10, qd1] = 0.5 * I, 0.5 * I
+    M[10:15, q0], M[10:15, q1] = -I, I
+    M[15:20, qd0], M[15:20, qd1] = -I, I
+    M[20:25, u] = I
+    M[25 : 25 + nf, f] = np.eye(nf)
+    M[25 + nf :, q1] = I
+    return M
+
+
+def interval_constraints_midpoint(layout: Layout, r, p: OCPParams):
+    """Constraints of one interval as a function of its midpoint variables r (``midpoint_map``)."""
     h = p.T / layout.N
-    q0, qd0, u, q1, qd1 = za[sl["q"]], za[sl["qd"]], za[sl["u"]], zb[sl["q"]], zb[sl["qd"]]
-    qbar, qdbar = 0.5 * (q0 + q1), 0.5 * (qd0 + qd1)
+    nf = layout.n_f
+    qbar, qdbar, dq, dqd, u = r[0:5], r[5:10], r[10:15], r[15:20], r[20:25]
+    q1 = r[25 + nf : 30 + nf]
     if layout.pseudo_static:
-        qdbar = (q1 - q0) / h  # (8): the rate from the positions; equals qdbar where (6a) holds
-    f_law = ct.contact_forces(p.model, p.foot, p.contact, qbar, qdbar, layout.active)
-    if layout.augmented:
-        f_var = za[sl["f"]].reshape(-1, 2)
-        f_used = f_var
+        qdbar_law = dq / h  # (8): the rate from the positions; equals qdbar where (6a) holds
     else:
-        f_used = f_law
-    kin_res = q1 - q0 - h * 0.5 * (qd0 + qd1)  # (6a)
+        qdbar_law = qdbar
+    f_law = ct.contact_forces(p.model, p.foot, p.contact, qbar, qdbar_law, layout.active)
+    f_used = r[25 : 25 + nf].reshape(-1, 2) if layout.augmented else f_law
+    kin_res = dq - h * qdbar  # (6a)
     if layout.pseudo_static:
         dyn_res = dyn.pseudo_static_residual(p.model, qbar, u, f_used, layout.active)  # (8)
-        qdd = jnp.zeros(5)
-        f_c0 = ft.foot_reaction(p.model, qbar, jnp.zeros(5), qdd, f_used)
+        f_c0 = ft.foot_reaction(p.model, qbar, jnp.zeros(5), jnp.zeros(5), f_used)
     else:
-        qdd = (qd1 - qd0) / h
+        qdd = dqd / h
         dyn_res = h * dyn.dynamics_residual(p.model, qbar, qdbar, qdd, u, f_used, layout.active)  # (6b)
         f_c0 = ft.foot_reaction(p.model, qbar, qdbar, qdd, f_used)
     parts = [kin_res, dyn_res]
     if layout.augmented:
-        parts.append((f_var - f_law).ravel())
+        parts.append((f_used - f_law).ravel())
     parts.append(ft.foot_constraints(p.foot, p.contact.mu, f_c0, u[0]))  # (5), at the midpoint
     if layout.clear_joints:
         gaps = kin.contact_gaps(p.model, p.foot, q1)
         parts.append(gaps[jnp.asarray(layout.clear_joints) - 1])
     return jnp.concatenate(parts)
+
+
+def interval_constraints(layout: Layout, za, zb, p: OCPParams):
+    """Constraints of one interval from its two stages za = Z[k], zb = Z[k+1]. Shape (n_con,)."""
+    r = jnp.asarray(midpoint_map(layout)) @ jnp.concatenate([za, zb])
+    return interval_constraints_midpoint(layout, r, p)
 
 
 def interval_cost(layout: Layout, za, zb, p: OCPParams, last_u: bool):

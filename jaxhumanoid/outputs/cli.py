@@ -79,7 +79,7 @@ def cmd_solve(args) -> int:
         its = "+".join(str(i) for i in report["iterations"])
         times = "+".join(f"{t:.2f}" for t in report["solve_time_s"])
         print(
-            f"{report['task']} {report['scheme']} {report['solver']}: {report['status']} "
+            f"{report['task']} {report['scheme']} {report['solver']}: {' + '.join(report['stage_status'])} "
             f"iterations {its}, solve {times} s (compile {report['compile_time_s']:.1f} s), "
             f"objective {report['objective']:.6g}, max violation {report['max_constraint_violation']:.1e}, "
             f"wall {time.perf_counter() - t0:.1f} s -> {out}"
@@ -97,7 +97,8 @@ def _table2_markdown(records) -> str:
         p_it, p_t = paper if paper else ("failed", "failed")
         its = "+".join(str(i) for i in r["iterations"])
         times = "+".join(f"{t:.2f}" for t in r["solve_time_s"])
-        lines.append(f"| {r['task']} | {r['scheme']} | {r['status']} | {its} | {times} | {p_it} | {p_t} |")
+        status = " + ".join(r.get("stage_status", [r["status"]]))
+        lines.append(f"| {r['task']} | {r['scheme']} | {status} | {its} | {times} | {p_it} | {p_t} |")
     return "\n".join(lines) + "\n"
 
 
@@ -120,7 +121,7 @@ def cmd_table2(args) -> int:
         rec = _save(sol, cell_dir)
         records.append(rec)
         if not args.quiet:
-            print(f"      {rec['status']}, iterations {rec['iterations']}, solve {[round(t, 2) for t in rec['solve_time_s']]} s", flush=True)
+            print(f"      {' + '.join(rec['stage_status'])}, iterations {rec['iterations']}, solve {[round(t, 2) for t in rec['solve_time_s']]} s", flush=True)
         (out / "table2.json").write_text(json.dumps(records, indent=2) + "\n")
     (out / "table2.md").write_text(_table2_markdown(records))
     if not args.quiet:

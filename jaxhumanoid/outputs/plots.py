@@ -172,7 +172,8 @@ def _title(sol) -> str:
     if not sol.stages:
         state = "no solver statistics"
     else:
-        state = "converged" if sol.success else f"NOT converged ({sol.status})"
+        statuses = " + ".join(s.status for s in sol.stages)
+        state = "converged" if sol.success else f"NOT converged ({statuses})"
     return (f"task {sol.task}  |  scheme {sol.scheme}  |  solver {sol.solver}  |  "
             f"objective J = {float(sol.objective):.4g}  |  {state}")
 

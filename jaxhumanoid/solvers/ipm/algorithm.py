@@ -101,6 +101,7 @@ class State(NamedTuple):
     theta_max: jax.Array
     dw_last: jax.Array
     n_perturbed: jax.Array
+    n_dc: jax.Array
     n_acceptable: jax.Array
     tiny_count: jax.Array
     resto_iters: jax.Array
@@ -234,13 +235,21 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         diag_c = jnp.where(P.free, -1.0, -(dc + inv_s))
         return h_mask, jac_mask, inv_s, diag_x, diag_c
 
-    def factorize(P, Wvals, jac, sig_x, sig_s, dw, dc, fast=True):
+    def factorize(P, Wvals, jac, sig_x, sig_s, dw, dc, fast=True, base=None):
         """Assemble and factor; ``fast=False`` (eigh blocks only) keeps the rarely used call
-        sites (restoration, multiplier initialisation) small for the compiler."""
+        sites (restoration, multiplier initialisation) small for the compiler. ``base``: blocks
+        assembled once with a zero diagonal, to which only the diagonal is added (IC trials)."""
         h_mask, jac_mask, inv_s, diag_x, diag_c = kkt_parts(P, None, Wvals, sig_x, sig_s, dw, dc)
-        A, B = kkt.assemble(st, Wvals * h_mask, jac * jac_mask, diag_x, diag_c)
+        if base is None:
+            A, B = kkt.assemble(st, Wvals * h_mask, jac * jac_mask, diag_x, diag_c)
+        else:
+            A, B = kkt.add_diagonal(st, base[0], diag_x, diag_c), base[1]
         fac = kkt.factor(st, A, B, fast=fast)
         return A, B, fac, inv_s
+
+    def assemble_base(P, Wvals, jac):
+        h_mask, jac_mask, _, _, _ = kkt_parts(P, None, Wvals, jnp.zeros(n), jnp.zeros(m), 0.0, 0.0)
+        return kkt.assemble(st, Wvals * h_mask, jac * jac_mask, jnp.zeros(n), jnp.zeros(m))
 
     def solve_reduced(P, A, B, fac, inv_s, rx, rs, c):
         """Solve (13) given residuals r_x (grad_x phi + J^T y), r_s (grad_s phi - y), c."""
@@ -289,15 +298,17 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         return clip(zl, dxl, P.hxl), clip(zu, dxu, P.hxu), clip(vl, dsl, P.hsl), clip(vu, dsu, P.hsu)
 
     # ---------------------------------------------------------------- inertia correction (IC)
-    def inertia_corrected_factor(P, Wvals, jac, sig_x, sig_s, dw_last, mu, skip_zero):
+    def inertia_corrected_factor(P, Wvals, jac, sig_x, sig_s, dw_last, mu, skip_zero, jac_degen):
         """Algorithm IC (Sec. 3.1): smallest delta_w (and delta_c if K is singular) giving inertia
         (n, m, 0); a single traced factorisation inside one while_loop. The first pass has no
         shift, unless ``skip_zero`` (IPOPT's degenerate-Hessian heuristic: after
-        ``degen_iters_max`` consecutive perturbed iterations, start from kappa_w^- delta_w_last)."""
+        ``degen_iters_max`` consecutive perturbed iterations, start from kappa_w^- delta_w_last;
+        likewise delta_c > 0 from the start once K was singular that many iterations in a row)."""
         dw1 = jnp.where(dw_last == 0.0, o.first_hessian_perturbation,
                         jnp.maximum(o.min_hessian_perturbation, o.perturb_dec_fact * dw_last))
         inc = jnp.where(dw_last == 0.0, o.perturb_inc_fact_first, o.perturb_inc_fact)
         S_, nb = st.S, st.nb
+        base = assemble_base(P, Wvals, jac)
         z3 = jnp.zeros((S_, nb, nb))
         fac0 = kkt.Factor(z3, z3, jnp.zeros((), jnp.int64), jnp.zeros((), jnp.int64), jnp.zeros((), jnp.int64))
         zero = jnp.zeros(())
@@ -308,19 +319,22 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
 
         def body(c):
             _, dw, dc, t = c[:4]
-            A_, B_, fac_, inv_s_ = factorize(P, Wvals, jac, sig_x, sig_s, dw, dc)
+            A_, B_, fac_, inv_s_ = factorize(P, Wvals, jac, sig_x, sig_s, dw, dc, base=base)
             fac_ = fac_._replace(npos=fac_.npos.astype(jnp.int64), nneg=fac_.nneg.astype(jnp.int64),
                                  nzero=fac_.nzero.astype(jnp.int64))
             ok = kkt.inertia_ok(st, fac_)
             first = (t == 0) & ~skip_zero
-            dc_n = jnp.where((dc == 0.0) & (fac_.nzero > 0), o.jacobian_regularization_value
-                             * mu ** o.jacobian_regularization_exponent, dc)
-            dw_n = jnp.where(ok, dw, jnp.where(first, dw1, inc * dw))
+            new_dc = (dc == 0.0) & (fac_.nzero > 0)
+            dc_n = jnp.where(new_dc, o.jacobian_regularization_value * mu ** o.jacobian_regularization_exponent, dc)
+            # a singular K first gets delta_c > 0 at the same delta_w (IC-3); otherwise IC-4 / IC-6
+            dw_n = jnp.where(ok, dw, jnp.where(first, dw1, jnp.where(new_dc & (dw > 0), dw, inc * dw)))
             dc_n = jnp.where(ok, dc, dc_n)
             return ok, dw_n, dc_n, t + 1, A_, B_, fac_, inv_s_
 
         ok, dw, dc, trials, A, B, fac, inv_s = lax.while_loop(
-            cond, body, (jnp.zeros((), bool), jnp.where(skip_zero, dw1, 0.0), zero, jnp.zeros((), jnp.int32),
+            cond, body, (jnp.zeros((), bool), jnp.where(skip_zero, dw1, 0.0),
+                         jnp.where(jac_degen, o.jacobian_regularization_value * mu ** o.jacobian_regularization_exponent, 0.0),
+                         jnp.zeros((), jnp.int32),
                          z3, z3, fac0, jnp.zeros(m)))
         new_dw_last = jnp.where(ok & (dw > 0), dw, dw_last)
         return A, B, fac, inv_s, ok, dw, dc, new_dw_last, trials
@@ -375,7 +389,9 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         """
         it0 = S.it
         theta0 = theta_of(P, S.ev.g, it0.s)
-        mu_r0 = jnp.maximum(mu, 1e-1 * jnp.minimum(1.0, jnp.max(jnp.abs(constr_resid(P, S.ev.g, it0.s)), initial=0.0)))
+        # barrier weight well below ||c||^2, so that the barrier does not dominate the least squares
+        th_inf0 = jnp.max(jnp.abs(constr_resid(P, S.ev.g, it0.s)), initial=0.0)
+        mu_r0 = jnp.minimum(mu, jnp.maximum(1e-2 * th_inf0 ** 2, o.tol / 10))
 
         class RS(NamedTuple):
             x: jax.Array
@@ -433,7 +449,19 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
             success = (th_new <= o.kappa_resto * theta0) & filter_ok(S, th_new, phi_new)
             progress = th_old - th_new > 1e-6 * jnp.maximum(th_old, EPS)
             stall = jnp.where(progress | (R.mu_r > 10 * o.tol), 0, R.stall + 1)
-            infeasible = (stall >= 5) & (th_new > 0.0)
+            # local infeasibility: no progress and a stationary point of 1/2 ||c||^2 over the
+            # bounds (projected gradient small relative to ||c||)
+            gx = jnp.where(P.fixed, 0.0, jt_mult(jac, c))
+            gs = jnp.where(P.hsl | P.hsu, -c, 0.0)
+
+            def near(d, b):
+                return d <= 1e-5 * jnp.maximum(1.0, jnp.abs(jnp.where(jnp.isfinite(b), b, 0.0)))
+
+            pgx = jnp.where((P.hxl & near(dxl, P.xl) & (gx > 0)) | (P.hxu & near(dxu, P.xu) & (gx < 0)), 0.0, gx)
+            pgs = jnp.where((P.hsl & near(dsl, P.gl) & (gs > 0)) | (P.hsu & near(dsu, P.gu) & (gs < 0)), 0.0, gs)
+            pg = jnp.maximum(jnp.max(jnp.abs(pgx), initial=0.0), jnp.max(jnp.abs(pgs), initial=0.0))
+            stationary = pg <= 1e-4 * jnp.maximum(jnp.max(jnp.abs(c), initial=0.0), 1e-300)
+            infeasible = (stall >= 5) & stationary & (th_new > 0.0)
             # Levenberg-Marquardt update of the damping: relax after full steps, stiffen after cuts
             zeta_n = jnp.clip(jnp.where(ok & (a >= 0.99 * amax), 0.25 * zeta, zeta * jnp.minimum(100.0, 2.0 / a)),
                               1e-10, 1e10)
@@ -467,9 +495,11 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         Wvals = hessian(P, it.x, it.y)
         sig_x, sig_s = sigmas(P, it)
         skip_zero = S.n_perturbed >= o.degen_iters_max
+        jac_degen = S.n_dc >= o.degen_iters_max
         A, B, fac, inv_s, ok_step, dw, dc, dw_last, n_fact = inertia_corrected_factor(
-            P, Wvals, ev.jac, sig_x, sig_s, S.dw_last, mu, skip_zero)
+            P, Wvals, ev.jac, sig_x, sig_s, S.dw_last, mu, skip_zero, jac_degen)
         n_perturbed = jnp.where(dw > 0, S.n_perturbed + 1, 0).astype(jnp.int32)
+        n_dc = jnp.where(dc > 0, S.n_dc + 1, 0).astype(jnp.int32)
         gx, gs = barrier_grad(P, ev.grad, it.x, it.s, mu)
         rx = gx + jt_mult(ev.jac, it.y)
         rs = jnp.where(P.hsl | P.hsu, gs - it.y, 0.0)
@@ -638,7 +668,7 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
                          alpha_du=jnp.where(accepted, a_du, 0.0), alpha_pr=jnp.where(accepted, a_pr, 0.0),
                          ls=n_trials, kind=kind, resto_iters=S.resto_iters + rj, n_fact=n_fact)
         S_next = S_next._replace(it=it_next, ev=ev_next, mu=mu, dw_last=dw_last, tiny_count=tiny_count,
-                                 n_perturbed=n_perturbed,
+                                 n_perturbed=n_perturbed, n_dc=n_dc,
                                  resto_iters=S.resto_iters + rj, k=S.k + 1)
         return S_next, status, step_info
 
@@ -721,7 +751,7 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
                   filt_n=jnp.zeros((), jnp.int32),
                   theta_min=o.theta_min_fact * jnp.maximum(1.0, theta0),
                   theta_max=o.theta_max_fact * jnp.maximum(1.0, theta0),
-                  dw_last=jnp.zeros(()), n_perturbed=jnp.zeros((), jnp.int32), n_acceptable=jnp.zeros((), jnp.int32), tiny_count=jnp.zeros((), jnp.int32),
+                  dw_last=jnp.zeros(()), n_perturbed=jnp.zeros((), jnp.int32), n_dc=jnp.zeros((), jnp.int32), n_acceptable=jnp.zeros((), jnp.int32), tiny_count=jnp.zeros((), jnp.int32),
                   resto_iters=jnp.zeros((), jnp.int32), hist=hist)
         info0 = dict(mu=S.mu, d_norm=jnp.zeros(()), reg=jnp.zeros(()), alpha_du=jnp.zeros(()),
                      alpha_pr=jnp.zeros(()), ls=jnp.zeros((), jnp.int32), kind=jnp.zeros((), jnp.int32),

@@ -188,6 +188,13 @@ def assemble(st: KKTStructure, hess_vals, jac_vals, diag_x, diag_c):
     return A, B
 
 
+def add_diagonal(st: KKTStructure, A, diag_x, diag_c):
+    """A + the diagonal entries diag_x (variables) and diag_c (constraints), padding untouched."""
+    flat = A.reshape(-1)
+    flat = flat.at[st.var_diag_t].add(diag_x).at[st.con_diag_t].add(diag_c)
+    return flat.reshape(A.shape)
+
+
 class Factor(NamedTuple):
     Dinv: jax.Array     # (S, nb, nb) inverses of the pivot blocks D_k
     L: jax.Array        # (S, nb, nb) L_{k+1,k} = B_k D_k^{-1}

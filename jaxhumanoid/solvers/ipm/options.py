@@ -79,7 +79,6 @@ class IPMOptions:
     # feasibility restoration (Sec. 3.3, simplified: see algorithm.restoration)
     max_resto_iter: int = 200
     kappa_resto: float = 0.9
-    required_infeasibility_reduction: float = 0.9
     # output
     print_level: int = 0
     keep_history: bool = True
@@ -101,8 +100,7 @@ _POSITIVE = (
     "max_hessian_perturbation", "perturb_inc_fact_first", "perturb_inc_fact",
     "jacobian_regularization_value", "obj_scaling_factor",
 )
-_OPEN_UNIT = ("kappa_mu", "tau_min", "perturb_dec_fact", "kappa_soc", "kappa_resto",
-              "required_infeasibility_reduction")
+_OPEN_UNIT = ("kappa_mu", "tau_min", "perturb_dec_fact", "kappa_soc", "kappa_resto")
 _NONNEG_INT = ("acceptable_iter", "max_soc", "iterative_refinement_steps", "print_level", "degen_iters_max")
 _POS_INT = ("max_iter", "max_ls_trials", "filter_size", "max_inertia_trials", "max_resto_iter")
 SCALING_METHODS = ("gradient-based", "none")
