@@ -578,30 +578,55 @@ def reference_solve(problem, tol: float = 1e-10, max_iter: int = 3000, verbose: 
     raise RuntimeError(f"reference_solve: every attempt failed (last: {res.status})")
 
 
+def continuation_solve(problem, p_from, res_from, p_to, max_rel_step: float = 0.25, bounds=None, options: dict | None = None):
+    """Follow the branch of local optima through ``res_from`` (at ``p_from``) to ``p_to``.
+
+    The OCP has several local optima; a warm start after a long parameter step can land on
+    another branch. The step is cut into k equal sub-steps so that no leaf of p changes by more
+    than ``max_rel_step`` (relative) per sub-step, each warm-started from the previous one.
+    """
+    leaves_a = [np.asarray(a, dtype=float) for a in jax.tree.leaves(p_from)]
+    leaves_b = [np.asarray(b, dtype=float) for b in jax.tree.leaves(p_to)]
+    rel = max((float(np.max(np.abs(b - a) / (np.abs(a) + 1e-12))) if a.size else 0.0) for a, b in zip(leaves_a, leaves_b))
+    k = max(1, int(np.ceil(rel / max_rel_step)))
+    dp = jax.tree.map(lambda a, b: np.asarray(b, dtype=float) - np.asarray(a, dtype=float), p_from, p_to)
+    res = res_from
+    for i in range(1, k + 1):
+        p_i = p_to if i == k else perturb(p_from, dp, i / k)
+        res = resolve_robust(problem, p=p_i, bounds=bounds, warm=res, options=options)
+        if not res.success:
+            break
+    return res
+
+
 # ----------------------------------------------------------------------------------------------
 # JAX wrapper
 
 
-def make_solve(problem, result=None, options: dict | None = None, sc_tol: float = 1e-6, strict: bool = False, warm_from: str = "last"):
+def make_solve(problem, result=None, options: dict | None = None, sc_tol: float = 1e-6, strict: bool = False, warm_from: str = "last", max_rel_step: float | None = None):
     """``solve(p) -> x*(p)``: an IPOPT solve inside ``jax.pure_callback``, differentiable by
     ``jax.custom_vjp`` (reverse mode: ``jax.grad``/``jax.vjp`` of scalar losses of x*).
 
     Every solve is warm-started (primal and dual) from the previous one (``warm_from="last"``,
     initially ``result``) or always from ``result`` (``warm_from="initial"``: keeps the solves on
     the branch of local optima through ``result``; the OCP has several local optima and a long
-    step can make a warm start jump to another one). ``strict=True`` raises when a solve fails; otherwise a failed solve warns.
+    step can make a warm start jump to another one). ``max_rel_step``: follow the branch from the
+    warm start's parameters by ``continuation_solve`` (sub-steps of at most this relative change). ``strict=True`` raises when a solve fails; otherwise a failed solve warns.
     ``solve.last`` holds the latest NLPResult, ``solve.stats`` counts solves and adjoints.
     """
     nlp = problem.nlp
     fns = _jax_fns(nlp)
     n, m = nlp.n, nlp.m
-    state = {"warm": result, "last": None}
+    state = {"warm": result, "p_warm": problem.p if result is not None else None, "last": None}
     stats = {"solves": 0, "adjoints": 0, "solve_time_s": 0.0, "adjoint_time_s": 0.0}
     p_struct = jax.tree.structure(problem.p)
     f64 = jnp.float64
 
     def _solve_cb(p_np):
-        res = resolve_robust(problem, p=p_np, warm=state["warm"], options=options)
+        if max_rel_step is not None and state["warm"] is not None:
+            res = continuation_solve(problem, state["p_warm"], state["warm"], p_np, max_rel_step=max_rel_step, options=options)
+        else:
+            res = resolve_robust(problem, p=p_np, warm=state["warm"], options=options)
         if not res.success:
             msg = f"make_solve: IPOPT returned {res.status}"
             if strict:
@@ -610,8 +635,8 @@ def make_solve(problem, result=None, options: dict | None = None, sc_tol: float 
         stats["solves"] += 1
         stats["solve_time_s"] += res.solve_time_s
         state["last"] = res
-        if warm_from == "last" or state["warm"] is None:
-            state["warm"] = res
+        if (warm_from == "last" or state["warm"] is None) and res.success:
+            state["warm"], state["p_warm"] = res, p_np
         return res.x, res.lam_g, res.z_l, res.z_u
 
     def _adjoint_cb(x, lam, zl, zu, p_np, ct):

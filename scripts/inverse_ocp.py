@@ -18,11 +18,12 @@ most 7 of the 8 weights can be recovered; w_qd is held at its true value as the 
 reference. ``--params ratios`` fits the other 7 (w_u1..w_u5, w_dqd, w_du); ``--params groups``
 fits 3 (a common factor on the five torque weights, w_dqd, w_du).
 
-Every solve is warm-started (primal-dual) from the data solve (``--no-anchor``: from the previous
-solve). The OCP has several local optima (T1, N = 15: cold solves end at f = 144, 171, 245, ...
+Every solve follows the branch of local optima through the data by continuation from the
+previous solve (sub-steps of <= 25 % relative weight change, each warm-started primal-dual;
+``--no-anchor``: one warm-started solve from the previous one). The OCP has several local optima (T1, N = 15: cold solves end at f = 144, 171, 245, ...
 depending on options) and a warm start after a long step can jump to another branch, where the
-mismatch is large and flat; anchoring the warm start at the observed trajectory (known in an
-inverse problem) keeps every solve on the data's branch.
+mismatch is large and flat; continuation from the observed trajectory (known in an inverse
+problem) keeps every solve on the data's branch.
 
     python scripts/inverse_ocp.py --task T1 --N 15 --json /tmp/inverse.json
 """
@@ -86,7 +87,7 @@ def variable_scales(problem, x) -> np.ndarray:
     return np.broadcast_to(col, Z.shape)[problem.layout.free_mask()]
 
 
-def run(task="T1", N=15, T=5.0, scheme="A,F+C,1S", params="ratios", method="gn", factor_lo=2.0, factor_hi=5.0, seed=0, max_nfev=30, tol=1e-10, anchor=True, verbose=True):
+def run(task="T1", N=15, T=5.0, scheme="A,F+C,1S", params="ratios", method="gn", factor_lo=2.0, factor_hi=5.0, seed=0, max_nfev=30, tol=1e-10, anchor=True, max_rel_step=0.25, verbose=True):
     t_start = time.perf_counter()
     prob = build_problem(task, scheme, N=N, T=T)
     w_true = np.asarray(prob.p.weights, dtype=float)
@@ -98,7 +99,7 @@ def run(task="T1", N=15, T=5.0, scheme="A,F+C,1S", params="ratios", method="gn",
     rng = np.random.default_rng(seed)
     factors = rng.uniform(factor_lo, factor_hi, size=k) ** rng.choice([-1.0, 1.0], size=k)
     theta0 = theta_true + np.log(factors)
-    state = {"warm": data, "cache": {}, "solves": 0, "sens": 0, "solve_time": 0.0, "sens_time": 0.0, "history": []}
+    state = {"warm": data, "p_warm": prob.p, "cache": {}, "solves": 0, "sens": 0, "solve_time": 0.0, "sens_time": 0.0, "history": []}
 
     def solve_at(theta):
         key = tuple(np.round(theta, 15))
@@ -106,13 +107,15 @@ def run(task="T1", N=15, T=5.0, scheme="A,F+C,1S", params="ratios", method="gn",
             return state["cache"][key]
         p = dataclasses.replace(prob.p, weights=to_w(theta))
         t0 = time.perf_counter()
-        res = S.resolve_robust(prob, p=p, warm=state["warm"], options=opts)
+        if anchor:  # follow the data's branch from the last solve
+            res = S.continuation_solve(prob, state["p_warm"], state["warm"], p, max_rel_step=max_rel_step, options=opts)
+        else:
+            res = S.resolve_robust(prob, p=p, warm=state["warm"], options=opts)
         state["solve_time"] += time.perf_counter() - t0
         state["solves"] += 1
         if not res.success:
             raise RuntimeError(f"solve at w={to_w(theta)} failed: {res.status}")
-        if not anchor:
-            state["warm"] = res
+        state["warm"], state["p_warm"] = res, p
         state["cache"] = {key: (p, res)}
         r = (res.x - x_data) / scale
         state["history"].append({"theta": theta.tolist(), "loss": float(0.5 * r @ r), "iterations": res.iterations})
@@ -146,7 +149,7 @@ def run(task="T1", N=15, T=5.0, scheme="A,F+C,1S", params="ratios", method="gn",
         import jax
         import jax.numpy as jnp
 
-        solve = S.make_solve(prob, result=data, options=opts, warm_from="initial" if anchor else "last")
+        solve = S.make_solve(prob, result=data, options=opts, max_rel_step=max_rel_step if anchor else None)
         wt = jnp.asarray(w_true)
         D_idx = None
 
@@ -179,7 +182,7 @@ def run(task="T1", N=15, T=5.0, scheme="A,F+C,1S", params="ratios", method="gn",
 
     # final mismatch at the recovered weights
     p_hat = dataclasses.replace(prob.p, weights=to_w(theta_hat))
-    res_hat = S.resolve_robust(prob, p=p_hat, warm=data if anchor else state["warm"], options=opts)
+    res_hat = S.continuation_solve(prob, prob.p, data, p_hat, max_rel_step=max_rel_step, options=opts) if anchor else S.resolve_robust(prob, p=p_hat, warm=state["warm"], options=opts)
     r = (res_hat.x - x_data) / scale
     Zd, Zh = prob.full(x_data), prob.full(res_hat.x)
     out = {

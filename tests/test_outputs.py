@@ -270,3 +270,22 @@ def test_outputs_do_not_load_pyplot():
     code = ("import sys, jaxhumanoid.outputs.plots, jaxhumanoid.outputs.timeline, jaxhumanoid.outputs.animation; "
             "assert 'matplotlib.pyplot' not in sys.modules")
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_progress_reports_steps_elapsed_and_eta(capsys):
+    from jaxhumanoid.outputs.progress import Progress
+
+    now = [0.0]
+    progress = Progress(3, clock=lambda: now[0])
+    for item in progress.iter(["a", "b", "c"], label=str):
+        now[0] += 10.0
+        progress.note(f"did {item}")
+    out = capsys.readouterr().out
+    assert "[1/3] a  start" in out and "[3/3] c  done in 10.0 s  did c" in out
+    assert "ETA 20.0 s" in out  # after the first 10 s step, two steps are left
+    quiet = Progress(2, quiet=True)
+    quiet.start("x")
+    quiet.finish()
+    assert capsys.readouterr().out == "" and len(quiet.lines) == 2
+    with pytest.raises(ValueError, match="total"):
+        Progress(-1)

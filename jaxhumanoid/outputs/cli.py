@@ -104,6 +104,7 @@ def _table2_markdown(records) -> str:
 
 def cmd_table2(args) -> int:
     from jaxhumanoid.ocp.scheme import TABLE2_SCHEMES
+    from jaxhumanoid.outputs.progress import Progress
     from jaxhumanoid.strategy.solve import solve
 
     out = pathlib.Path(args.out)
@@ -112,16 +113,16 @@ def cmd_table2(args) -> int:
     tasks = args.tasks or ["T1", "T2", "T3", "T4"]
     schemes = args.schemes or list(TABLE2_SCHEMES)
     cells = [(t, s) for t in tasks for s in schemes]
-    t_start = time.perf_counter()
-    for i, (task, scheme) in enumerate(cells, 1):
-        if not args.quiet:
-            print(f"[{i}/{len(cells)}] {task} {scheme} ... (elapsed {time.perf_counter() - t_start:.0f} s)", flush=True)
+    progress = Progress(len(cells), quiet=args.quiet)
+    for task, scheme in progress.iter(cells, label=lambda c: f"{c[0]} {c[1]}"):
         sol = solve(task, scheme, solver=args.solver, N=args.N, options=_ipopt_options(args.ipopt_option))
         cell_dir = out / f"{task}_{scheme.replace(',', '_').replace('+', 'p')}"
         rec = _save(sol, cell_dir)
         records.append(rec)
-        if not args.quiet:
-            print(f"      {' + '.join(rec['stage_status'])}, iterations {rec['iterations']}, solve {[round(t, 2) for t in rec['solve_time_s']]} s", flush=True)
+        progress.note(
+            f"{' + '.join(rec['stage_status'])}, iterations {'+'.join(map(str, rec['iterations']))}, "
+            f"solve {'+'.join(f'{t:.1f}' for t in rec['solve_time_s'])} s"
+        )
         (out / "table2.json").write_text(json.dumps(records, indent=2) + "\n")
     (out / "table2.md").write_text(_table2_markdown(records))
     if not args.quiet:

@@ -27,10 +27,12 @@ from jaxhumanoid.strategy.problem import Problem, build_problem
 
 SOLVERS = ("ipopt", "ipm", "casadi")
 STAGE1_N = 30
-# A primal-only warm start with IPOPT's default mu_init = 0.1 throws the good stage-1 point away
-# (the first barrier steps push every variable back towards the centre of its bounds; measured on
-# T1: 3000+ iterations, no convergence). Starting the barrier at 1e-3 keeps the warm start.
-STAGE2_DEFAULTS = {"mu_init": 1e-3}
+# Barrier settings of the two stages, chosen by a measured study (README, "2S warm start"):
+# stage 1 from the linear guess with IPOPT's mu_init = 0.1 ends "infeasible" on T3; 1e-2 converges
+# on all four tasks. Stage 2 from the primal warm start: a small initial barrier and a small bound
+# push keep the warm start instead of pushing every variable back to the middle of its bounds.
+STAGE1_DEFAULTS = {"mu_init": 1e-2}
+STAGE2_DEFAULTS = {"mu_init": 1e-3, "bound_push": 1e-6, "bound_frac": 1e-6}
 
 
 def _inverse_normal_force(contact: ContactParams, f):
@@ -192,7 +194,8 @@ def solve(
         t0 = time.perf_counter()
         first = build_problem(task, scheme, N=N1, T=T, pseudo_static=True, contact=relaxed, q_start=q_start1)
         setup_first = time.perf_counter() - t0
-        res1 = _run_solver(solver, first, first.bounds.x0, {**(options or {}), **(stage1_options or {})}, verbose)
+        stage1 = {**(STAGE1_DEFAULTS if solver != "ipm" else {}), **(options or {}), **(stage1_options or {})}
+        res1 = _run_solver(solver, first, first.bounds.x0, stage1, verbose)
         stages.append(_stage_stats("stage 1 (pseudo-static)", first, res1, setup_first))
         Z1 = first.full(res1.x)
         Zf = interpolate_full(Z1, T, final.layout)

@@ -389,9 +389,9 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         """
         it0 = S.it
         theta0 = theta_of(P, S.ev.g, it0.s)
-        # barrier weight well below ||c||^2, so that the barrier does not dominate the least squares
+        # barrier weight starts at max(mu, 0.1 min(1, ||c||_inf)) and is reduced by 5 per iteration
         th_inf0 = jnp.max(jnp.abs(constr_resid(P, S.ev.g, it0.s)), initial=0.0)
-        mu_r0 = jnp.minimum(mu, jnp.maximum(1e-2 * th_inf0 ** 2, o.tol / 10))
+        mu_r0 = jnp.maximum(mu, 1e-1 * jnp.minimum(1.0, th_inf0))
 
         class RS(NamedTuple):
             x: jax.Array
