@@ -9,7 +9,7 @@ vmapped over the intervals, and mapped back to w by the chain rule:
 
     dc/dw = (dc/dr) M,        d2(lam.c)/dw2 = M^T (d2(lam.c)/dr2) M,
 
-each as a precomputed gather + segment-sum from the r-values to the entries of the w-pattern.
+each as a precomputed fixed-width gather from the r-values to the entries of the w-pattern.
 The cost's (constant-pattern) Hessian is added in w directly.
 """
 
@@ -39,17 +39,19 @@ class LocalDerivatives:
 
 
 def _chain(entries: dict):
-    """Targets (sorted pattern), and (target index, source index, coefficient) triplets."""
+    """Targets (sorted pattern) and their sources as a padded (n_targets, width) gather:
+    value[t] = sum_k source[src[t, k]] * coef[t, k] (padding has coefficient 0). A gather is much
+    cheaper than a scatter-add on CPU."""
     keys = sorted(entries)
-    tgt, src, coef = [], [], []
+    width = max(len(v) for v in entries.values())
+    src = np.zeros((len(keys), width), dtype=np.int64)
+    coef = np.zeros((len(keys), width))
     for t, key in enumerate(keys):
-        for s_idx, c in entries[key]:
-            tgt.append(t)
-            src.append(s_idx)
-            coef.append(c)
+        for k, (s_idx, c) in enumerate(entries[key]):
+            src[t, k], coef[t, k] = s_idx, c
     rows = np.array([k[0] for k in keys], dtype=np.int64)
     cols = np.array([k[1] for k in keys], dtype=np.int64)
-    return rows, cols, np.array(tgt, dtype=np.int64), np.array(src, dtype=np.int64), np.array(coef)
+    return rows, cols, src, coef
 
 
 def local_derivatives(con_r, M: np.ndarray, cost, p_example, seed: int = 0) -> LocalDerivatives:
@@ -68,7 +70,7 @@ def local_derivatives(con_r, M: np.ndarray, cost, p_example, seed: int = 0) -> L
     for e, (row, i) in enumerate(zip(jr, jc)):
         for a in col_of[i]:
             entries[(row, a)].append((e, M[i, a]))
-    jw_rows, jw_cols, j_tgt, j_src, j_coef = _chain(entries)
+    jw_rows, jw_cols, j_src, j_coef = _chain(entries)
     jcol = colouring.colour_columns(jr, jc, (n_con, nr))
     jac_r = compressed.stage_jacobian(con_r, jr, jc, nr, colouring=jcol, args_axes=(None,))
 
@@ -90,23 +92,22 @@ def local_derivatives(con_r, M: np.ndarray, cost, p_example, seed: int = 0) -> L
                         entries[(a, b)].append((e, M[i2, a] * M[j2, b]))
     for e, (a, b) in enumerate(zip(cr, cc)):
         entries[(a, b)].append((hr.size + e, 1.0))
-    hw_rows, hw_cols, h_tgt, h_src, h_coef = _chain(entries)
+    hw_rows, hw_cols, h_src, h_coef = _chain(entries)
     hcol = colouring.star_colouring(hr, hc, nr)
     ccol = colouring.star_colouring(cr, cc, nw)
     hess_r = compressed.stage_hessian(lag_r, hr, hc, nr, colouring=hcol, args_axes=(0, None))
     hess_cost = compressed.stage_hessian(lambda w, sigma, last, p: sigma * cost(w, p, last), cr, cc, nw, colouring=ccol, args_axes=(None, 0, None))
 
-    j_tgt_j, j_src_j, j_coef_j = jnp.asarray(j_tgt), jnp.asarray(j_src), jnp.asarray(j_coef)
-    h_tgt_j, h_src_j, h_coef_j = jnp.asarray(h_tgt), jnp.asarray(h_src), jnp.asarray(h_coef)
-    n_jw, n_hw = jw_rows.size, hw_rows.size
+    j_src_j, j_coef_j = jnp.asarray(j_src), jnp.asarray(j_coef)
+    h_src_j, h_coef_j = jnp.asarray(h_src), jnp.asarray(h_coef)
 
     def jacobian(W, p):
         vals = jac_r(W @ Mj.T, p)  # (K, nnz_r)
-        return jax.vmap(lambda v: jax.ops.segment_sum(v[j_src_j] * j_coef_j, j_tgt_j, num_segments=n_jw))(vals)
+        return jnp.sum(vals[:, j_src_j] * j_coef_j, axis=-1)
 
     def hessian(W, lam, sigma, last, p):
         vals = jnp.concatenate([hess_r(W @ Mj.T, lam, p), hess_cost(W, sigma, last, p)], axis=1)
-        return jax.vmap(lambda v: jax.ops.segment_sum(v[h_src_j] * h_coef_j, h_tgt_j, num_segments=n_hw))(vals)
+        return jnp.sum(vals[:, h_src_j] * h_coef_j, axis=-1)
 
     return LocalDerivatives(
         jw_rows, jw_cols, hw_rows, hw_cols, jacobian, hessian,

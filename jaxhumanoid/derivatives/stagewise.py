@@ -9,7 +9,7 @@ w_k = (Z[k], Z[k+1]) in R^{2s}. So
 with P_k selecting w_k from x. The local blocks are computed by compressed forward (Jacobian) and
 forward-over-reverse (Hessian) evaluation with seeds from a colouring of the *local* pattern, for
 all N intervals at once under ``vmap``. The global patterns are the unions of the local ones; the
-Hessian values of the two intervals sharing Z[k+1] are summed by a precomputed segment map.
+Hessian values of the two intervals sharing Z[k+1] are summed by a precomputed two-wide gather.
 """
 
 from __future__ import annotations
@@ -78,7 +78,16 @@ def stagewise_nlp(layout: tr.Layout, p_example: tr.OCPParams, name: str = "ocp")
     pairs = np.stack([np.maximum(gr[keep], gc[keep]), np.minimum(gr[keep], gc[keep])], axis=1)
     uniq, seg = np.unique(pairs, axis=0, return_inverse=True)
     seg = seg.ravel()
-    n_hess = uniq.shape[0]
+    # Each global entry sums at most two local ones (intervals k and k+1 share Z[k+1]): a padded
+    # two-wide gather instead of a scatter-add.
+    order = np.argsort(seg, kind="stable")
+    counts = np.bincount(seg, minlength=uniq.shape[0])
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    width = int(counts.max())
+    hess_src = np.full((uniq.shape[0], width), hess_gather.size, dtype=np.int64)  # padding -> a zero
+    for k in range(width):
+        has = counts > k
+        hess_src[has, k] = order[starts[has] + k]
 
     last = jnp.arange(N) == N - 1
 
@@ -104,7 +113,7 @@ def stagewise_nlp(layout: tr.Layout, p_example: tr.OCPParams, name: str = "ocp")
         W = local_w(x, p)
         lam_k = jnp.reshape(lam, (N, n_con))
         vals = loc.hessian(W, lam_k, sigma, last, p).ravel()[hess_gather]
-        return jax.ops.segment_sum(vals, seg, num_segments=n_hess)
+        return jnp.sum(jnp.append(vals, 0.0)[hess_src], axis=1)
 
     var_stage = np.nonzero(layout.free_mask())[0]
     con_stage = np.repeat(np.arange(N), n_con)
