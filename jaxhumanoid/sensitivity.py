@@ -492,44 +492,13 @@ WARM_OPTIONS = {
 def resolve(problem, p=None, bounds=None, warm=None, options: dict | None = None):
     """IPOPT solve of ``problem`` at parameters ``p`` (default problem.p) and ``bounds``; ``warm`` an
     NLPResult whose x and multipliers warm-start the solve (``WARM_OPTIONS``)."""
-    from jaxhumanoid.solvers.ipopt import DEFAULT_OPTIONS, SUCCESS, STATUS, _Callbacks, _finite_or_inf
-    from jaxhumanoid.solvers.result import NLPResult, constraint_violation
+    from jaxhumanoid.solvers.ipopt import solve_ipopt
 
-    import cyipopt
-
-    nlp = problem.nlp
     p = problem.p if p is None else p
     bounds = problem.bounds if bounds is None else bounds
-    opts = dict(DEFAULT_OPTIONS)
-    opts.pop("file_print_level", None)
-    if warm is not None:
-        opts.update(WARM_OPTIONS)
-    opts.update(options or {})
+    opts = {**(WARM_OPTIONS if warm is not None else {}), **(options or {})}
     x0 = np.clip(np.asarray(bounds.x0 if warm is None else warm.x, dtype=float), bounds.xl, bounds.xu)
-    cb = _Callbacks(nlp, p)
-    t0 = time.perf_counter()
-    prob = cyipopt.Problem(n=nlp.n, m=nlp.m, problem_obj=cb, lb=_finite_or_inf(bounds.xl, -1), ub=_finite_or_inf(bounds.xu, 1), cl=_finite_or_inf(bounds.gl, -1), cu=_finite_or_inf(bounds.gu, 1))
-    for key, val in opts.items():
-        prob.add_option(key, val)
-    if warm is not None:
-        x, info = prob.solve(x0, lagrange=np.asarray(warm.lam_g), zl=np.asarray(warm.z_l), zu=np.asarray(warm.z_u))
-    else:
-        x, info = prob.solve(x0)
-    dt = time.perf_counter() - t0
-    status = STATUS.get(int(info["status"]), f"Unknown_Status_{info['status']}")
-    return NLPResult(
-        x=np.asarray(x),
-        lam_g=np.asarray(info["mult_g"]),
-        z_l=np.asarray(info["mult_x_L"]),
-        z_u=np.asarray(info["mult_x_U"]),
-        status=status,
-        success=status in SUCCESS,
-        iterations=max(len(cb.history["objective"]) - 1, 0),
-        solve_time_s=dt,
-        compile_time_s=0.0,
-        objective=float(info["obj_val"]),
-        max_constraint_violation=constraint_violation(np.asarray(info["g"]), x, bounds.gl, bounds.gu, bounds.xl, bounds.xu),
-    )
+    return solve_ipopt(problem.nlp, p, bounds, x0=x0, options=opts, warm=warm)
 
 
 def resolve_robust(problem, p=None, bounds=None, warm=None, options: dict | None = None):

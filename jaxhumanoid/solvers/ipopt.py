@@ -116,12 +116,15 @@ def _finite_or_inf(a, sign):
     return np.where(np.isfinite(a), a, sign * _INF)
 
 
-def solve_ipopt(nlp: NLP, p, bounds: Bounds, x0=None, options: dict | None = None, verbose: bool = False) -> NLPResult:
+def solve_ipopt(
+    nlp: NLP, p, bounds: Bounds, x0=None, options: dict | None = None, verbose: bool = False, warm: NLPResult | None = None
+) -> NLPResult:
     """Solve ``nlp`` at parameters ``p`` with IPOPT (exact Hessian, MUMPS by default).
 
     ``options`` are IPOPT options, merged over ``DEFAULT_OPTIONS``; ``verbose`` echoes IPOPT's
-    iteration log. The returned ``NLPResult.success`` is True for Solve_Succeeded and
-    Solved_To_Acceptable_Level only.
+    iteration log; ``warm`` (an earlier result) supplies starting multipliers (lam_g, z_l, z_u),
+    which IPOPT uses with ``warm_start_init_point=yes``. The returned ``NLPResult.success`` is True
+    for Solve_Succeeded and Solved_To_Acceptable_Level only.
     """
     import cyipopt  # deferred: importing the package should not load IPOPT
 
@@ -153,7 +156,10 @@ def solve_ipopt(nlp: NLP, p, bounds: Bounds, x0=None, options: dict | None = Non
             except TypeError as err:
                 raise ValueError(f"options[{key!r}]: IPOPT rejected value {val!r} ({err})") from err
         t0 = time.perf_counter()
-        x, info = problem.solve(x0)
+        if warm is None:
+            x, info = problem.solve(x0)
+        else:
+            x, info = problem.solve(x0, lagrange=np.asarray(warm.lam_g), zl=np.asarray(warm.z_l), zu=np.asarray(warm.z_u))
         solve_time = time.perf_counter() - t0
         log = open(opts["output_file"]).read() if os.path.exists(opts["output_file"]) else ""
     finally:
