@@ -52,8 +52,8 @@ def evaluations(N: int, repeats: int) -> dict:
     fns = {
         "f": ca.Function("f", [cn.x], [cn.f]),
         "g": ca.Function("g", [cn.x], [cn.g]),
-        "jacobian": ca.Function("jac", [cn.x], [ca.jacobian(cn.g, cn.x)]),
-        "hessian": ca.Function("hess", [cn.x, lam_s, sig], [ca.tril(ca.hessian(sig * cn.f + ca.dot(lam_s, cn.g), cn.x)[0])]),
+        "jacobian": ca.Function("jacobian_g", [cn.x], [ca.jacobian(cn.g, cn.x)]),
+        "hessian": ca.Function("hessian_lagrangian", [cn.x, lam_s, sig], [ca.tril(ca.hessian(sig * cn.f + ca.dot(lam_s, cn.g), cn.x)[0])]),
     }
     build_s = time.perf_counter() - t0
     cas_res = {k: _time_casadi(fn, (x, lam, 1.0) if k == "hessian" else (x,), repeats) for k, fn in fns.items()}
