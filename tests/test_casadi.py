@@ -7,21 +7,13 @@ import pytest
 import jaxhumanoid  # noqa: F401  (float64)
 from jaxhumanoid.checks import cross_validate
 from jaxhumanoid.model.params import ContactParams
+from jaxhumanoid.checks import DEFAULT_CASES
 from jaxhumanoid.solvers.casadi_backend import build_casadi_nlp, solve_casadi
 from jaxhumanoid.solvers.ipopt import solve_ipopt
 from jaxhumanoid.strategy.problem import build_problem
 from jaxhumanoid.strategy.solve import reseat_for_contact
 
-CASES = [
-    ("T1", "E,F,1S", False),
-    ("T1", "A,F,1S", False),
-    ("T1", "A,F+C,1S", False),
-    ("T1", "A,F+C,1S", True),
-    ("T3", "E,F,1S", False),
-    ("T3", "A,F,1S", False),
-    ("T3", "A,F+C,1S", False),
-    ("T3", "A,F+C,1S", True),
-]
+CASES = list(DEFAULT_CASES)
 
 
 @pytest.mark.parametrize("task,scheme,pseudo", CASES)

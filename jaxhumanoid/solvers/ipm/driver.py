@@ -74,6 +74,22 @@ def _package(nlp, out, bounds, opts, solve_time, compile_time):
                      objective=float(out["f"]), max_constraint_violation=viol, history=history, log=log)
 
 
+def _compile_and_run(core, args):
+    """Run the compiled core on ``args`` (compiling once per argument structure and shapes).
+
+    Returns (numpy outputs, solve time, compile time of this call)."""
+    key = jax.tree.structure(args), tuple(jnp.shape(a) for a in jax.tree.leaves(args))
+    compile_time = 0.0
+    if key not in core["compiled"]:
+        t0 = time.perf_counter()
+        core["compiled"][key] = core["fn"].lower(*args).compile()
+        compile_time = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    out = jax.block_until_ready(core["compiled"][key](*args))
+    solve_time = time.perf_counter() - t0
+    return jax.tree.map(np.asarray, out), solve_time, compile_time
+
+
 def solve_ipm(nlp: NLP, p, bounds: Bounds, x0=None, options: IPMOptions | dict | None = None) -> NLPResult:
     """Solve the NLP with the own interior-point method; warm start from ``x0`` if given.
 
@@ -87,16 +103,7 @@ def solve_ipm(nlp: NLP, p, bounds: Bounds, x0=None, options: IPMOptions | dict |
     core = _core(nlp, opts, batched=False)
     args = (jnp.asarray(x0), jnp.asarray(bounds.xl, float), jnp.asarray(bounds.xu, float),
             jnp.asarray(bounds.gl, float), jnp.asarray(bounds.gu, float), p, jnp.asarray(float_vector(opts)))
-    key = jax.tree.structure(args), tuple(jnp.shape(a) for a in jax.tree.leaves(args))
-    compile_time = 0.0
-    if key not in core["compiled"]:
-        t0 = time.perf_counter()
-        core["compiled"][key] = core["fn"].lower(*args).compile()
-        compile_time = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    out = jax.block_until_ready(core["compiled"][key](*args))
-    solve_time = time.perf_counter() - t0
-    out = jax.tree.map(np.asarray, out)
+    out, solve_time, compile_time = _compile_and_run(core, args)
     return _package(nlp, out, bounds, opts, solve_time, compile_time)
 
 
@@ -117,16 +124,7 @@ def batch_solve_ipm(nlp: NLP, p_batch, bounds: Bounds, x0=None, options=None) ->
     arrs = [bc(x0, nlp.n), bc(bounds.xl, nlp.n), bc(bounds.xu, nlp.n), bc(bounds.gl, nlp.m), bc(bounds.gu, nlp.m)]
     core = _core(nlp, opts, batched=True)
     args = tuple(jnp.asarray(a) for a in arrs) + (p_batch, jnp.asarray(float_vector(opts)))
-    key = jax.tree.structure(args), tuple(jnp.shape(a) for a in jax.tree.leaves(args))
-    compile_time = 0.0
-    if key not in core["compiled"]:
-        t0 = time.perf_counter()
-        core["compiled"][key] = core["fn"].lower(*args).compile()
-        compile_time = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    out = jax.block_until_ready(core["compiled"][key](*args))
-    solve_time = time.perf_counter() - t0
-    out = jax.tree.map(np.asarray, out)
+    out, solve_time, compile_time = _compile_and_run(core, args)
     results = []
     for b in range(nbatch):
         ob = jax.tree.map(lambda a: a[b], out)
