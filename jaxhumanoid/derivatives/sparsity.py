@@ -64,6 +64,14 @@ def _union_nonzeros(dense_fn: Callable, points: np.ndarray, name: str) -> np.nda
     return mask
 
 
+def _sampled(fun, n: int, args, shape_ok, expected: str, derivative):
+    """Jitted dense ``derivative`` of x -> fun(x, *args), after checking fun's output shape."""
+    out = jax.eval_shape(lambda x: fun(x, *args), jax.ShapeDtypeStruct((n,), jnp.float64))
+    if not hasattr(out, "shape") or not shape_ok(out.shape):
+        raise ValueError(f"fun: expected {expected}, got output {out}")
+    return jax.jit(derivative(lambda x: fun(x, *args)))
+
+
 def jacobian_sparsity(
     fun: Callable[..., Any],
     n: int,
@@ -79,12 +87,8 @@ def jacobian_sparsity(
     Returns (rows, cols), int64 arrays of shape (nnz,), sorted row-major. ``points`` (shape
     (num_points, n)) overrides the random sample drawn from ``center``/``scale``/``seed``.
     """
-    points = sample_points(n, num_points, center, scale, seed, points)
-    out = jax.eval_shape(lambda x: fun(x, *args), jax.ShapeDtypeStruct((n,), jnp.float64))
-    if not hasattr(out, "shape") or len(out.shape) != 1:
-        raise ValueError(f"fun: expected a function returning a 1-D array, got output {out}")
-    jac = jax.jit(jax.jacfwd(lambda x: fun(x, *args)))
-    rows, cols = np.nonzero(_union_nonzeros(jac, points, "the Jacobian"))
+    jac = _sampled(fun, n, args, lambda shape: len(shape) == 1, "a function returning a 1-D array", jax.jacfwd)
+    rows, cols = np.nonzero(_union_nonzeros(jac, sample_points(n, num_points, center, scale, seed, points), "the Jacobian"))
     return rows.astype(np.int64), cols.astype(np.int64)
 
 
@@ -103,12 +107,8 @@ def hessian_sparsity(
     Returns (rows, cols), int64 arrays of shape (nnz,) with rows >= cols, sorted row-major. The
     pattern is symmetrised before taking the triangle, so round-off asymmetry cannot drop an entry.
     """
-    points = sample_points(n, num_points, center, scale, seed, points)
-    out = jax.eval_shape(lambda x: fun(x, *args), jax.ShapeDtypeStruct((n,), jnp.float64))
-    if not hasattr(out, "shape") or out.shape != ():
-        raise ValueError(f"fun: expected a scalar-valued function, got output {out}")
-    hess = jax.jit(jax.hessian(lambda x: fun(x, *args)))
-    mask = _union_nonzeros(hess, points, "the Hessian")
+    hess = _sampled(fun, n, args, lambda shape: shape == (), "a scalar-valued function", jax.hessian)
+    mask = _union_nonzeros(hess, sample_points(n, num_points, center, scale, seed, points), "the Hessian")
     rows, cols = np.nonzero(np.tril(mask | mask.T))
     return rows.astype(np.int64), cols.astype(np.int64)
 

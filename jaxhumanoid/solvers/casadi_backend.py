@@ -24,14 +24,12 @@ Jacobian and Hessian compares entry by entry.
 from __future__ import annotations
 
 import dataclasses
-import os
-import tempfile
 import time
 
 import casadi as ca
 import numpy as np
 
-from jaxhumanoid.solvers.ipopt import DEFAULT_OPTIONS, SUCCESS
+from jaxhumanoid.solvers.ipopt import DEFAULT_OPTIONS, SUCCESS, captured_log
 from jaxhumanoid.solvers.result import NLPResult, constraint_violation
 
 N_Q = 5
@@ -284,12 +282,9 @@ def solve_casadi(problem, x0=None, options: dict | None = None, verbose: bool = 
         raise ValueError("x0: contains NaN or inf")
     opts = dict(DEFAULT_OPTIONS)
     opts.update(options or {})
-    fd, log_path = tempfile.mkstemp(prefix="casadi_ipopt_", suffix=".log")
-    os.close(fd)
-    opts.setdefault("output_file", log_path)
     t0 = time.perf_counter()
     cnlp = build_casadi_nlp(problem)
-    try:
+    with captured_log(opts, prefix="casadi_ipopt_") as log:
         try:
             solver = ca.nlpsol(
                 "solver", "ipopt", {"x": cnlp.x, "f": cnlp.f, "g": cnlp.g}, {"ipopt": opts, "print_time": False, "error_on_fail": False}
@@ -301,12 +296,8 @@ def solve_casadi(problem, x0=None, options: dict | None = None, verbose: bool = 
         sol = solver(x0=x0, lbx=bounds.xl, ubx=bounds.xu, lbg=bounds.gl, ubg=bounds.gu)
         solve_time = time.perf_counter() - t1
         stats = solver.stats()
-        log = open(opts["output_file"]).read() if os.path.exists(opts["output_file"]) else ""
-    finally:
-        if os.path.exists(log_path):
-            os.remove(log_path)
     if verbose:
-        print(log)
+        print(log["text"])
     x = np.asarray(sol["x"]).ravel()
     lam_x = np.asarray(sol["lam_x"]).ravel()
     g_val = np.asarray(sol["g"]).ravel()
@@ -327,5 +318,5 @@ def solve_casadi(problem, x0=None, options: dict | None = None, verbose: bool = 
         objective=float(sol["f"]),
         max_constraint_violation=constraint_violation(g_val, x, bounds.gl, bounds.gu, bounds.xl, bounds.xu),
         history=history,
-        log=log,
+        log=log["text"],
     )

@@ -7,6 +7,7 @@ per-iteration statistics come from the ``intermediate`` callback.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import tempfile
 import time
@@ -53,6 +54,24 @@ DEFAULT_OPTIONS = {
     "sb": "yes",
 }
 _INF = 2e19  # IPOPT's "no bound" is anything beyond nlp_lower/upper_bound_inf (1e19)
+
+
+@contextlib.contextmanager
+def captured_log(opts: dict, prefix: str = "ipopt_"):
+    """Point IPOPT's ``output_file`` at a temporary file (unless ``opts`` already names one) and
+    yield a dict whose ``"text"`` holds the iteration log once the block has ended."""
+    fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=".log")
+    os.close(fd)
+    opts.setdefault("output_file", tmp)
+    out = {"text": ""}
+    try:
+        yield out
+    finally:
+        if os.path.exists(opts["output_file"]):
+            with open(opts["output_file"]) as fh:
+                out["text"] = fh.read()
+        if os.path.exists(tmp):
+            os.remove(tmp)
 
 
 class _Callbacks:
@@ -146,10 +165,7 @@ def solve_ipopt(
         cl=_finite_or_inf(bounds.gl, -1),
         cu=_finite_or_inf(bounds.gu, 1),
     )
-    fd, log_path = tempfile.mkstemp(prefix="ipopt_", suffix=".log")
-    os.close(fd)
-    opts.setdefault("output_file", log_path)
-    try:
+    with captured_log(opts) as log:
         for key, val in opts.items():
             try:
                 problem.add_option(key, val)
@@ -161,12 +177,8 @@ def solve_ipopt(
         else:
             x, info = problem.solve(x0, lagrange=np.asarray(warm.lam_g), zl=np.asarray(warm.z_l), zu=np.asarray(warm.z_u))
         solve_time = time.perf_counter() - t0
-        log = open(opts["output_file"]).read() if os.path.exists(opts["output_file"]) else ""
-    finally:
-        if os.path.exists(log_path):
-            os.remove(log_path)
     if verbose:
-        print(log)
+        print(log["text"])
     status = STATUS.get(int(info["status"]), f"Unknown_Status_{info['status']}")
     g_val = np.asarray(info["g"])
     return NLPResult(
@@ -182,5 +194,5 @@ def solve_ipopt(
         objective=float(info["obj_val"]),
         max_constraint_violation=constraint_violation(g_val, x, bounds.gl, bounds.gu, bounds.xl, bounds.xu),
         history={**{k: np.asarray(v) for k, v in cb.history.items()}, "eval_time_s": cb.eval_time},
-        log=log,
+        log=log["text"],
     )

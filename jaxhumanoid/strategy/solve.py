@@ -127,9 +127,10 @@ def make_solution(problem: Problem, x, stages, solver: str, warm_start=None) -> 
     if layout.pseudo_static:
         qdbar = np.diff(q, axis=0) / h
     idx = np.asarray(layout.active) - 1
-    forces = jax.vmap(lambda a, b: ct.contact_forces(p.model, p.foot, p.contact, a, b, layout.active))(qbar, qdbar)
     if layout.augmented:
         forces = Z[:-1, sl["f"]].reshape(N, -1, 2)
+    else:
+        forces = jax.vmap(lambda a, b: ct.contact_forces(p.model, p.foot, p.contact, a, b, layout.active))(qbar, qdbar)
     f_contact = np.zeros((N, 5, 2))
     f_contact[:, idx] = np.asarray(forces)
     qdd = np.zeros_like(qbar) if layout.pseudo_static else np.diff(qd, axis=0) / h
