@@ -229,6 +229,8 @@ def total_cost(layout: Layout, Z, p: OCPParams):
 def default_params(task, contact: ContactParams | None = None, T: float = 5.0, weights=None) -> OCPParams:
     task = tasks_mod.get_task(task)
     w = task.weights.as_array() if weights is None else np.asarray(weights, dtype=float)
+    if w.shape != (8,) or not np.all(np.isfinite(w)) or np.any(w < 0):
+        raise ValueError(f"weights: expected 8 finite weights >= 0 (w_u1..w_u5, w_qd, w_dqd, w_du), got {weights!r}")
     return OCPParams(
         model=Humanoid.paper(),
         foot=FootParams.paper(),

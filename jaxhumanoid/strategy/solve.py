@@ -177,15 +177,17 @@ def solve(
     stage1_options: dict | None = None,
     stage2_options: dict | None = None,
     verbose: bool = False,
+    weights=None,
 ) -> Solution:
     """Solve one task with one strategy. ``options`` apply to every stage; ``stage1_options`` and
-    ``stage2_options`` override them per stage (2S)."""
+    ``stage2_options`` override them per stage (2S). ``weights``: the eight cost weights of (7)
+    (default ``ocp.tasks.Weights()``), used by both stages."""
     task = get_task(task)
     scheme = parse_scheme(scheme)
     if solver not in SOLVERS:
         raise ValueError(f"solver: {solver!r} not in {SOLVERS}")
     t0 = time.perf_counter()
-    final = build_problem(task, scheme, N=N, T=T)
+    final = build_problem(task, scheme, N=N, T=T, weights=weights)
     setup_final = time.perf_counter() - t0
     stages, warm = [], None
     x0 = final.bounds.x0
@@ -193,7 +195,7 @@ def solve(
         relaxed = ContactParams.relaxed()
         q_start1, _ = reseat_for_contact(final.p, final.p.q_start, final.layout.active, relaxed)
         t0 = time.perf_counter()
-        first = build_problem(task, scheme, N=N1, T=T, pseudo_static=True, contact=relaxed, q_start=q_start1)
+        first = build_problem(task, scheme, N=N1, T=T, pseudo_static=True, contact=relaxed, q_start=q_start1, weights=weights)
         setup_first = time.perf_counter() - t0
         stage1 = {**(STAGE1_DEFAULTS if solver != "ipm" else {}), **(options or {}), **(stage1_options or {})}
         res1 = _run_solver(solver, first, first.bounds.x0, stage1, verbose)
