@@ -197,14 +197,14 @@ def solve(
         t0 = time.perf_counter()
         first = build_problem(task, scheme, N=N1, T=T, pseudo_static=True, contact=relaxed, q_start=q_start1, weights=weights)
         setup_first = time.perf_counter() - t0
-        stage1 = {**(STAGE1_DEFAULTS if solver != "ipm" else {}), **(options or {}), **(stage1_options or {})}
+        stage1 = {**STAGE1_DEFAULTS, **(options or {}), **(stage1_options or {})}
         res1 = _run_solver(solver, first, first.bounds.x0, stage1, verbose)
         stages.append(_stage_stats("stage 1 (pseudo-static)", first, res1, setup_first))
         Z1 = first.full(res1.x)
         Zf = interpolate_full(Z1, T, final.layout)
         warm = {"t": np.linspace(0.0, T, N + 1), "q": Zf[:, 0:5]}
         x0 = np.clip(np.asarray(tr.free_from_full(final.layout, Zf)), final.bounds.xl, final.bounds.xu)
-    stage2 = {**(STAGE2_DEFAULTS if scheme.stages == 2 and solver != "ipm" else {}), **(options or {}), **(stage2_options or {})}
+    stage2 = {**(STAGE2_DEFAULTS if scheme.stages == 2 else {}), **(options or {}), **(stage2_options or {})}
     res = _run_solver(solver, final, x0, stage2, verbose)
     stages.append(_stage_stats("stage 2 (dynamic)" if scheme.stages == 2 else "single stage", final, res, setup_final))
     return make_solution(final, res.x, stages, solver, warm_start=warm)

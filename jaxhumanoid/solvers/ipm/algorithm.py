@@ -104,6 +104,10 @@ class State(NamedTuple):
     n_dc: jax.Array
     n_acceptable: jax.Array
     tiny_count: jax.Array
+    cur_acc: jax.Array      # the current iterate passes the acceptable-level tests
+    acc_it: Iterate         # the last acceptable iterate (IPOPT's fallback when the line search
+    acc_ev: Evals           # and restoration fail, Sec. 3.3) and its evaluations
+    has_acc: jax.Array
     resto_iters: jax.Array
     hist: dict
 
@@ -154,6 +158,9 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
 
     def j_mult(jac, dx):
         return _segsum(jac * dx[jc], jr, m)
+
+    def refinement():
+        return o.min_refinement_steps, o.max_refinement_steps, o.residual_ratio_max
 
     # ---------------------------------------------------------------- barrier pieces
     def slacks(P, x, s):
@@ -255,7 +262,7 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         """Solve (13) given residuals r_x (grad_x phi + J^T y), r_s (grad_s phi - y), c."""
         bx = jnp.where(P.fixed, 0.0, -rx)
         bc = jnp.where(P.free, 0.0, -c - inv_s * rs)
-        dx, dy = kkt.solve(st, fac, A, B, bx, bc, o.iterative_refinement_steps)
+        dx, dy = kkt.solve(st, fac, A, B, bx, bc, *refinement())
         ds = inv_s * (dy - rs)
         return dx, ds, dy
 
@@ -310,7 +317,8 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         S_, nb = st.S, st.nb
         base = assemble_base(P, Wvals, jac)
         z3 = jnp.zeros((S_, nb, nb))
-        fac0 = kkt.Factor(z3, z3, jnp.zeros((), jnp.int64), jnp.zeros((), jnp.int64), jnp.zeros((), jnp.int64))
+        fac0 = kkt.Factor(z3, z3, jnp.zeros((), jnp.int64), jnp.zeros((), jnp.int64), jnp.zeros((), jnp.int64),
+                          jnp.ones((S_, nb)))
         zero = jnp.zeros(())
 
         def cond(c):
@@ -349,7 +357,7 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         fac = kkt.factor(st, A, B, fast=False)
         a = jnp.where(P.fixed, 0.0, ev.grad - it.zl + it.zu)
         b = jnp.where(ineq_b, -it.vl + it.vu, 0.0)
-        _, y = kkt.solve(st, fac, A, B, -a, -b, o.iterative_refinement_steps)
+        _, y = kkt.solve(st, fac, A, B, -a, -b, *refinement())
         good = kkt.inertia_ok(st, fac) & jnp.all(jnp.isfinite(y)) & (jnp.max(jnp.abs(y), initial=0.0) <= o.constr_mult_init_max)
         return jnp.where(good & ~P.free, y, 0.0)
 
@@ -627,8 +635,11 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         S_acc = lax.cond(ftype, lambda s_: s_, lambda s_: filter_add(s_, theta_k, phi_k), S_acc)
         it_acc = Iterate(x_n, s_n, y_n, zl, zu, vl, vu)
 
-        # restoration when the line search failed (A-5.5 / A-9)
-        need_resto = ~accepted     # includes a failed inertia correction (IC-6)
+        # restoration when the line search failed (A-5.5 / A-9); as IPOPT, a failed line search at
+        # an acceptable point stops there instead ("Solved_To_Acceptable_Level")
+        ls_failed = ~accepted      # includes a failed inertia correction (IC-6)
+        stop_acceptable = ls_failed & S.cur_acc
+        need_resto = ls_failed & ~S.cur_acc
         S_r = filter_add(S, theta_k, phi_k)
 
         def do_resto(_):
@@ -656,9 +667,14 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         it_r = it_r._replace(y=lax.cond(resto_ok, lambda: ls_multipliers(P, it_r, ev_next), lambda: jnp.zeros(m)))
         it_next = jax.tree.map(lambda a_, b_: jnp.where(resto_ok, a_, b_), it_r, it_acc)
 
+        # a failed restoration (not local infeasibility) falls back to the last acceptable iterate
+        rollback = need_resto & ~resto_ok & (rcode != 4) & S.has_acc
+        it_next = jax.tree.map(lambda a_, b_: jnp.where(rollback, a_, b_), S.acc_it, it_next)
+        ev_next = jax.tree.map(lambda a_, b_: jnp.where(rollback, a_, b_), S.acc_ev, ev_next)
         S_next = jax.tree.map(lambda a_, b_: jnp.where(resto_ok, a_, b_), S_r, S_acc)
-        status = jnp.where(need_resto & ~resto_ok,
-                           jnp.where(rcode == 4, 4, jnp.where(ok_step, 5, 6)), 0).astype(jnp.int32)
+        status = jnp.where(stop_acceptable | rollback, 2,
+                           jnp.where(need_resto & ~resto_ok,
+                                     jnp.where(rcode == 4, 4, jnp.where(ok_step, 5, 6)), 0)).astype(jnp.int32)
         kind = jnp.where(resto_ok | need_resto, ord("r"),
                          jnp.where(tiny, ord("s"),
                                    jnp.where(use_soc, jnp.where(ftype, ord("F"), ord("H")),
@@ -695,7 +711,11 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
             row = dict(obj=S.ev.f / P.sf, inf_pr=err["pr_u"], inf_du=err["dual"], compl=err["compl"], **step_info)
             hist = {key: hist[key].at[k].set(jnp.asarray(row[key]).astype(hist[key].dtype)) for key in HIST_FIELDS}
         new_status = new_status.astype(jnp.int32)
-        return S._replace(done=new_status != 0, status=new_status, n_acceptable=n_acc, hist=hist)
+        keep = acc_pt & finite
+        acc_it = jax.tree.map(lambda a_, b_: jnp.where(keep, a_, b_), S.it, S.acc_it)
+        acc_ev = jax.tree.map(lambda a_, b_: jnp.where(keep, a_, b_), S.ev, S.acc_ev)
+        return S._replace(done=new_status != 0, status=new_status, n_acceptable=n_acc, hist=hist,
+                          cur_acc=keep, acc_it=acc_it, acc_ev=acc_ev, has_acc=S.has_acc | keep)
 
     # ---------------------------------------------------------------- driver
     def run(x0, xl, xu, gl, gu, p, fopts=None):
@@ -752,7 +772,8 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
                   theta_min=o.theta_min_fact * jnp.maximum(1.0, theta0),
                   theta_max=o.theta_max_fact * jnp.maximum(1.0, theta0),
                   dw_last=jnp.zeros(()), n_perturbed=jnp.zeros((), jnp.int32), n_dc=jnp.zeros((), jnp.int32), n_acceptable=jnp.zeros((), jnp.int32), tiny_count=jnp.zeros((), jnp.int32),
-                  resto_iters=jnp.zeros((), jnp.int32), hist=hist)
+                  resto_iters=jnp.zeros((), jnp.int32), hist=hist,
+                  cur_acc=jnp.zeros((), bool), acc_it=it, acc_ev=ev, has_acc=jnp.zeros((), bool))
         info0 = dict(mu=S.mu, d_norm=jnp.zeros(()), reg=jnp.zeros(()), alpha_du=jnp.zeros(()),
                      alpha_pr=jnp.zeros(()), ls=jnp.zeros((), jnp.int32), kind=jnp.zeros((), jnp.int32),
                      resto_iters=jnp.zeros((), jnp.int32), n_fact=jnp.zeros((), jnp.int32))

@@ -102,6 +102,13 @@ def build_structure(n, m, var_stage, con_stage, hess_rows, hess_cols, jac_rows, 
     vs, cs, S = _compress_stages(var_stage, con_stage) if n + m else (var_stage, con_stage, 1)
     nvar = np.bincount(vs, minlength=S)
     ncon = np.bincount(cs, minlength=S)
+    # Elimination direction: a pivot block whose equality rows outnumber its variables is singular
+    # although K is not (an optimal-control problem with a fixed initial state: interval 0's rows
+    # act on stage 1's variables). Eliminating from the other end (Riccati direction) gives that
+    # block the Schur complement of its neighbour first. Start at the end with the larger surplus.
+    if nvar[-1] - ncon[-1] > nvar[0] - ncon[0]:
+        vs, cs = S - 1 - vs, S - 1 - cs
+        nvar, ncon = nvar[::-1], ncon[::-1]
     # local layout of a block: [variables, primal padding | constraints, dual padding], split at
     # the static nbx = max_k n_k so that the fast path can factor the primal part first
     nbx = int(nvar.max()) if n else 0
@@ -196,11 +203,35 @@ def add_diagonal(st: KKTStructure, A, diag_x, diag_c):
 
 
 class Factor(NamedTuple):
-    Dinv: jax.Array     # (S, nb, nb) inverses of the pivot blocks D_k
-    L: jax.Array        # (S, nb, nb) L_{k+1,k} = B_k D_k^{-1}
+    Dinv: jax.Array     # (S, nb, nb) inverses of the pivot blocks D_k of the equilibrated K
+    L: jax.Array        # (S, nb, nb) L_{k+1,k} = B_k D_k^{-1} of the equilibrated K
     npos: jax.Array     # inertia of K (padding removed)
     nneg: jax.Array
     nzero: jax.Array    # numerically zero (or non-finite) eigenvalues: K singular
+    d: jax.Array        # (S, nb) symmetric equilibration: the factors are of diag(d) K diag(d)
+
+
+def equilibrate(A, B, passes: int = 2):
+    """Symmetric Ruiz scaling d (S, nb): row/column i of K divided by sqrt(max_j |K_ij|), repeated.
+
+    Near the end of an IPM solve Sigma spans 1e-17 .. 1e18; the block elimination (no pivoting
+    across stages) then loses every digit unless K is equilibrated first. A diagonal congruence
+    leaves the inertia unchanged (Sylvester)."""
+    S_, nb = A.shape[0], A.shape[1]
+    d = jnp.ones((S_, nb), A.dtype)
+    for _ in range(passes):
+        As, Bs = scale_blocks(A, B, d)
+        aB = jnp.abs(Bs)
+        rmax = jnp.maximum(jnp.max(jnp.abs(As), axis=2), jnp.max(aB, axis=1))    # A_k rows, B_k^T rows
+        rmax = rmax.at[1:].max(jnp.max(aB[:-1], axis=2))                          # B_{k-1} rows
+        d = d / jnp.sqrt(jnp.where((rmax > 0) & jnp.isfinite(rmax), rmax, 1.0))
+    return d
+
+
+def scale_blocks(A, B, d):
+    """Blocks of diag(d) K diag(d); B[k] couples block k+1 (rows) with block k (columns)."""
+    dn = jnp.concatenate([d[1:], jnp.ones_like(d[:1])], axis=0)
+    return A * d[:, :, None] * d[:, None, :], B * dn[:, :, None] * d[:, None, :]
 
 
 def _pivot_block(Dk, rel_zero_tol):
@@ -272,10 +303,12 @@ def _quasidefinite_block(Dk, nbx):
 def factor(st: KKTStructure, A, B, rel_zero_tol: float | None = None, fast: bool = True) -> Factor:
     """Block LDL^T of K by a forward ``lax.scan`` over the stages; inertia of K included.
 
-    Each pivot block first tries the quasi-definite fast path (two Choleskys); only blocks where
-    it fails (indefinite primal part, or singular) are eigen-decomposed (``lax.cond``), so the
-    inertia is exact in both cases.
+    K is first equilibrated (``equilibrate``). Each pivot block then tries the quasi-definite fast
+    path (two Choleskys); only blocks where it fails (indefinite primal part, or singular) are
+    eigen-decomposed (``lax.cond``), so the inertia is exact in both cases.
     """
+    d = equilibrate(A, B)
+    A, B = scale_blocks(A, B, d)
     if rel_zero_tol is None:
         rel_zero_tol = 10.0 * st.nb * float(np.finfo(np.float64).eps)
     nbx, nb = st.nbx, st.nb
@@ -303,12 +336,13 @@ def factor(st: KKTStructure, A, B, rel_zero_tol: float | None = None, fast: bool
     nneg = jnp.sum(nneg)
     nzero = jnp.sum(nzero)
     npos = st.S * st.nb - nneg - nzero - st.n_pad_pos
-    return Factor(Dinv, L, npos, nneg - st.n_pad_neg, nzero)
+    return Factor(Dinv, L, npos, nneg - st.n_pad_neg, nzero, d)
 
 
 def _solve_vec(fac: Factor, r):
-    """Solve K u = r for a stage-blocked vector r (S, nb) with the block LDL^T."""
+    """Solve K u = r for a stage-blocked vector r (S, nb) with the block LDL^T of diag(d) K diag(d)."""
     L = fac.L
+    r = fac.d * r
 
     def fwd(zprev, inp):
         rk, Lprev = inp
@@ -325,7 +359,7 @@ def _solve_vec(fac: Factor, r):
         return uk, uk
 
     _, u = lax.scan(bwd, jnp.zeros_like(r[0]), (w, L), reverse=True)
-    return u
+    return fac.d * u
 
 
 def matvec(A, B, u):
@@ -349,13 +383,29 @@ def from_blocks(st: KKTStructure, u):
     return u[st.var_pos], u[st.con_pos]
 
 
-def solve(st: KKTStructure, fac: Factor, A, B, rx, rc, refinement_steps: int = 1):
-    """(dx, dy) solving K [dx; dy] = [rx; rc], with ``refinement_steps`` of iterative refinement."""
+def solve(st: KKTStructure, fac: Factor, A, B, rx, rc, min_steps: int = 1, max_steps: int = 10,
+          residual_ratio_max: float = 1e-10):
+    """(dx, dy) solving K [dx; dy] = [rx; rc] with adaptive iterative refinement (as IPOPT's
+    min/max_refinement_steps, residual_ratio_max): u_{i+1} = u_i + K^{-1}(r - K u_i) until the
+    residual of the equilibrated system, ||d (r - K u)||_inf / (||u / d||_inf + ||d r||_inf), is at
+    most ``residual_ratio_max`` (after at least ``min_steps`` and at most ``max_steps`` refinements)."""
     r = to_blocks(st, rx, rc)
-    # u_0 = 0; u_{i+1} = u_i + K^{-1}(r - K u_i): the first pass is the plain solve, the others
-    # are iterative refinement; one traced solve keeps the compiled program small
-    u = lax.fori_loop(0, refinement_steps + 1, lambda i, u: u + _solve_vec(fac, r - matvec(A, B, u)),
-                      jnp.zeros_like(r))
+    dr = jnp.max(jnp.abs(fac.d * r))
+
+    def ratio(u, res):
+        return jnp.max(jnp.abs(fac.d * res)) / jnp.maximum(jnp.max(jnp.abs(u / fac.d)) + dr, 1e-300)
+
+    def cond(c):
+        _, res, t = c
+        return (t <= max_steps) & ((t <= min_steps) | (ratio(c[0], res) > residual_ratio_max))
+
+    def body(c):
+        u, res, t = c
+        u = u + _solve_vec(fac, res)
+        return u, r - matvec(A, B, u), t + 1
+
+    # one traced solve: the first pass (t = 0) is the plain solve, the others refine
+    u, _, _ = lax.while_loop(cond, body, (jnp.zeros_like(r), r, jnp.zeros((), jnp.int32)))
     return from_blocks(st, u)
 
 

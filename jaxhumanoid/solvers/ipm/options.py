@@ -74,8 +74,10 @@ class IPMOptions:
     jacobian_regularization_exponent: float = 0.25
     max_inertia_trials: int = 60
     degen_iters_max: int = 3        # consecutive perturbed iterations before the delta_w = 0 trial is skipped
-    # linear algebra
-    iterative_refinement_steps: int = 1
+    # linear algebra: adaptive iterative refinement (IPOPT's names and defaults)
+    min_refinement_steps: int = 1
+    max_refinement_steps: int = 10
+    residual_ratio_max: float = 1e-10
     # feasibility restoration (Sec. 3.3, simplified: see algorithm.restoration)
     max_resto_iter: int = 200
     kappa_resto: float = 0.9
@@ -98,10 +100,10 @@ _POSITIVE = (
     "theta_max_fact", "theta_min_fact", "gamma_theta", "gamma_phi", "delta", "eta_phi",
     "alpha_min_frac", "first_hessian_perturbation", "min_hessian_perturbation",
     "max_hessian_perturbation", "perturb_inc_fact_first", "perturb_inc_fact",
-    "jacobian_regularization_value", "obj_scaling_factor",
+    "jacobian_regularization_value", "obj_scaling_factor", "residual_ratio_max",
 )
 _OPEN_UNIT = ("kappa_mu", "tau_min", "perturb_dec_fact", "kappa_soc", "kappa_resto")
-_NONNEG_INT = ("acceptable_iter", "max_soc", "iterative_refinement_steps", "print_level", "degen_iters_max")
+_NONNEG_INT = ("acceptable_iter", "max_soc", "min_refinement_steps", "max_refinement_steps", "print_level", "degen_iters_max")
 _POS_INT = ("max_iter", "max_ls_trials", "filter_size", "max_inertia_trials", "max_resto_iter")
 SCALING_METHODS = ("gradient-based", "none")
 
