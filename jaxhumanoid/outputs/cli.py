@@ -144,14 +144,20 @@ def cmd_animate(args) -> int:
 def cmd_check(args) -> int:
     from jaxhumanoid import checks
 
-    schemes = [args.scheme] if args.scheme else ["E,F", "A,F", "A,F+C"]
     tasks = [args.task] if args.task else ["T1", "T2", "T3", "T4"]
-    cases = [(t, f"{s},1S", False) for t in tasks for s in schemes]
-    cases += [(t, "A,F+C,2S", True) for t in tasks]  # the pseudo-static stage-1 problem
-    rows = checks.check_table(cases, N=args.N, points=args.points)
+    if args.sensitivities:
+        from jaxhumanoid import sensitivity
+
+        scheme = f"{args.scheme or 'A,F+C'},1S"
+        rows, results = sensitivity.sensitivity_table(tasks, scheme, N=args.N or 15, eps=args.eps)
+    else:
+        schemes = [args.scheme] if args.scheme else ["E,F", "A,F", "A,F+C"]
+        cases = [(t, f"{s},1S", False) for t in tasks for s in schemes]
+        cases += [(t, "A,F+C,2S", True) for t in tasks]  # the pseudo-static stage-1 problem
+        rows = results = checks.check_table(cases, N=args.N or 8, points=args.points)
     print(checks.format_table(rows))
     if args.out:
-        pathlib.Path(args.out).write_text(json.dumps(rows, indent=2, default=float) + "\n")
+        pathlib.Path(args.out).write_text(json.dumps(results, indent=2, default=float) + "\n")
     failed = [r for r in rows if not r["ok"]]
     print(f"{len(rows) - len(failed)} passed, {len(failed)} failed")
     return 0 if not failed else 1
@@ -193,10 +199,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("check", help="cross-validate JAX against CasADi and finite differences")
     p.add_argument("--task", default=None, help="one task (default: all four)")
-    p.add_argument("--scheme", default=None, help="E,F | A,F | A,F+C (default: all three, plus the pseudo-static stage 1)")
-    p.add_argument("--N", type=int, default=8)
+    p.add_argument("--scheme", default=None, help="E,F | A,F | A,F+C (default: all three, plus the pseudo-static stage 1; A,F+C with --sensitivities)")
+    p.add_argument("--N", type=int, default=None, help="grid intervals (default 8; 15 with --sensitivities)")
     p.add_argument("--points", type=int, default=2, help="random points per case")
-    p.add_argument("--out", default=None, help="also write the rows as JSON")
+    p.add_argument("--sensitivities", action="store_true", help="instead: KKT sensitivities of the optimal trajectory against finite differences of re-solves (1S, every parameter group)")
+    p.add_argument("--eps", type=float, default=1e-5, help="finite-difference step of --sensitivities (relative)")
+    p.add_argument("--out", default=None, help="also write the rows (with --sensitivities: the full results) as JSON")
     p.set_defaults(func=cmd_check)
     return parser
 
