@@ -1,8 +1,10 @@
-"""IPOPT through cyipopt, with exact sparse Jacobian and Hessian from JAX.
+"""IPOPT (the library of the pinned cyipopt wheel), with exact sparse Jacobian and Hessian from JAX.
 
-IPOPT's options pass straight through (``options={"tol": 1e-9, ...}``). The iteration log is
-written by IPOPT to a file and read back into ``NLPResult.log`` (and echoed when ``verbose``);
-per-iteration statistics come from the ``intermediate`` callback.
+IPOPT is driven through its C interface (``ipopt_capi``), which copies derivative values with one
+memcpy instead of cyipopt's per-entry loop. IPOPT's options pass straight through
+(``options={"tol": 1e-9, ...}``). The iteration log is written by IPOPT to a file and read back
+into ``NLPResult.log`` (and echoed when ``verbose``); per-iteration statistics come from the
+intermediate callback.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import jax
 import numpy as np
 
 from jaxhumanoid.ocp.nlp import NLP, Bounds
+from jaxhumanoid.solvers import ipopt_capi
 from jaxhumanoid.solvers.result import NLPResult, constraint_violation
 
 # IPOPT's ApplicationReturnStatus codes.
@@ -75,11 +78,11 @@ def captured_log(opts: dict, prefix: str = "ipopt_"):
 
 
 class _Callbacks:
-    """The object cyipopt calls. JAX functions are jitted once and fed numpy arrays.
+    """What IPOPT calls, as jitted JAX functions fed numpy arrays.
 
     IPOPT asks for f and g at every trial point, and for grad f and the Jacobian at every
-    accepted one, in separate callbacks with the same x. Each pair is one fused jitted call whose
-    second half is cached until x changes: half the dispatches and host transfers per iteration.
+    accepted one, in separate callbacks at the same x. Each pair is one fused jitted call whose
+    second half is kept until IPOPT reports a new x: half the dispatches per iteration.
     """
 
     def __init__(self, nlp: NLP, p):
@@ -87,9 +90,7 @@ class _Callbacks:
         self._fg = jax.jit(lambda x, p: (nlp.f(x, p), nlp.g(x, p)))
         self._dj = jax.jit(lambda x, p: (nlp.grad(x, p), nlp.jac_values(x, p)))
         self._hess = jax.jit(nlp.hess_values)
-        self._jac_structure = (nlp.jac_rows, nlp.jac_cols)
-        self._hess_structure = (nlp.hess_rows, nlp.hess_cols)
-        self._cache = {"fg": (None, None), "dj": (None, None)}
+        self._cache: dict = {}
         self.history: dict[str, list] = {k: [] for k in ("objective", "inf_pr", "inf_du", "mu", "d_norm", "regularization", "alpha_du", "alpha_pr", "ls_trials")}
         self.eval_time = 0.0
         self.eval_calls = 0
@@ -108,38 +109,28 @@ class _Callbacks:
         self.eval_calls += 1
         return out
 
+    def new_point(self):
+        self._cache.clear()
+
     def _pair(self, key, fn, x):
-        x_cached, out = self._cache[key]
-        if x_cached is None or not np.array_equal(x_cached, x):
-            out = self._timed(fn, x, self.p)
-            self._cache[key] = (np.array(x), out)
-        return out
+        if key not in self._cache:
+            self._cache[key] = self._timed(fn, x, self.p)
+        return self._cache[key]
 
-    def objective(self, x):
-        return float(self._pair("fg", self._fg, x)[0])
-
-    def constraints(self, x):
-        return self._pair("fg", self._fg, x)[1]
-
-    def gradient(self, x):
-        return self._pair("dj", self._dj, x)[0]
-
-    def jacobian(self, x):
-        return self._pair("dj", self._dj, x)[1]
-
-    def jacobianstructure(self):
-        return self._jac_structure
-
-    def hessian(self, x, lagrange, obj_factor):
-        return self._timed(self._hess, x, lagrange, obj_factor, self.p)
-
-    def hessianstructure(self):
-        return self._hess_structure
+    def functions(self) -> dict:
+        return {
+            "f": lambda x: float(self._pair("fg", self._fg, x)[0]),
+            "g": lambda x: self._pair("fg", self._fg, x)[1],
+            "grad": lambda x: self._pair("dj", self._dj, x)[0],
+            "jac": lambda x: self._pair("dj", self._dj, x)[1],
+            "hess": lambda x, lam, obj_factor: self._timed(self._hess, x, lam, obj_factor, self.p),
+            "intermediate": self.intermediate,
+            "new_point": self.new_point,
+        }
 
     def intermediate(self, alg_mod, iter_count, obj_value, inf_pr, inf_du, mu, d_norm, regularization_size, alpha_du, alpha_pr, ls_trials):
         for key, val in zip(self.history, (obj_value, inf_pr, inf_du, mu, d_norm, regularization_size, alpha_du, alpha_pr, ls_trials)):
             self.history[key].append(val)
-        return True
 
 
 def _finite_or_inf(a, sign):
@@ -157,8 +148,6 @@ def solve_ipopt(
     which IPOPT uses with ``warm_start_init_point=yes``. The returned ``NLPResult.success`` is True
     for Solve_Succeeded and Solved_To_Acceptable_Level only.
     """
-    import cyipopt  # deferred: importing the package should not load IPOPT
-
     opts = dict(DEFAULT_OPTIONS)
     opts.update(options or {})
     x0 = np.asarray(bounds.x0 if x0 is None else x0, dtype=float)
@@ -168,43 +157,61 @@ def solve_ipopt(
         raise ValueError("x0: contains NaN or inf")
     cb = _Callbacks(nlp, p)
     compile_time = cb.warm_up(x0, nlp.m)
-    problem = cyipopt.Problem(
-        n=nlp.n,
-        m=nlp.m,
-        problem_obj=cb,
-        lb=_finite_or_inf(bounds.xl, -1),
-        ub=_finite_or_inf(bounds.xu, 1),
-        cl=_finite_or_inf(bounds.gl, -1),
-        cu=_finite_or_inf(bounds.gu, 1),
-    )
+    mults = {} if warm is None else {"mult_g": warm.lam_g, "mult_x_L": warm.z_l, "mult_x_U": warm.z_u}
     with captured_log(opts) as log:
-        for key, val in opts.items():
-            try:
-                problem.add_option(key, val)
-            except TypeError as err:
-                raise ValueError(f"options[{key!r}]: IPOPT rejected value {val!r} ({err})") from err
         t0 = time.perf_counter()
-        if warm is None:
-            x, info = problem.solve(x0)
-        else:
-            x, info = problem.solve(x0, lagrange=np.asarray(warm.lam_g), zl=np.asarray(warm.z_l), zu=np.asarray(warm.z_u))
+        code, x, g_val, obj, lam_g, z_l, z_u = ipopt_capi.solve(
+            nlp.n, nlp.m, _finite_or_inf(bounds.xl, -1), _finite_or_inf(bounds.xu, 1), _finite_or_inf(bounds.gl, -1), _finite_or_inf(bounds.gu, 1),
+            (nlp.jac_rows, nlp.jac_cols), (nlp.hess_rows, nlp.hess_cols), cb.functions(), opts, x0, **mults,
+        )
         solve_time = time.perf_counter() - t0
     if verbose:
         print(log["text"])
-    status = STATUS.get(int(info["status"]), f"Unknown_Status_{info['status']}")
-    g_val = np.asarray(info["g"])
+    status = STATUS.get(code, f"Unknown_Status_{code}")
     return NLPResult(
-        x=np.asarray(x),
-        lam_g=np.asarray(info["mult_g"]),
-        z_l=np.asarray(info["mult_x_L"]),
-        z_u=np.asarray(info["mult_x_U"]),
+        x=x,
+        lam_g=lam_g,
+        z_l=z_l,
+        z_u=z_u,
         status=status,
         success=status in SUCCESS,
         iterations=max(len(cb.history["objective"]) - 1, 0),
         solve_time_s=solve_time,
         compile_time_s=compile_time,
-        objective=float(info["obj_val"]),
+        objective=obj,
         max_constraint_violation=constraint_violation(g_val, x, bounds.gl, bounds.gu, bounds.xl, bounds.xu),
         history={**{k: np.asarray(v) for k, v in cb.history.items()}, "eval_time_s": cb.eval_time, "eval_calls": cb.eval_calls},
         log=log["text"],
     )
+
+
+def solve_cyipopt_reference(nlp: NLP, p, bounds: Bounds, x0=None, options: dict | None = None):
+    """The same solve through cyipopt's own Python binding (no fused calls, per-entry copies).
+
+    For cross-checks and benchmarks of ``solve_ipopt`` only: same IPOPT build, so the iterates
+    must agree to round-off. Returns (x, info, solve_time_s) as cyipopt gives them.
+    """
+    import cyipopt
+
+    f, g, grad, jac, hess = (jax.jit(fn) for fn in (nlp.f, nlp.g, nlp.grad, nlp.jac_values, nlp.hess_values))
+    x0 = np.asarray(bounds.x0 if x0 is None else x0, dtype=float)
+
+    class _Problem:
+        def objective(self, x): return float(f(x, p))
+        def gradient(self, x): return np.asarray(grad(x, p))
+        def constraints(self, x): return np.asarray(g(x, p))
+        def jacobian(self, x): return np.asarray(jac(x, p))
+        def jacobianstructure(self): return nlp.jac_rows, nlp.jac_cols
+        def hessian(self, x, lam, sigma): return np.asarray(hess(x, lam, sigma, p))
+        def hessianstructure(self): return nlp.hess_rows, nlp.hess_cols
+
+    obj = _Problem()
+    for out in (obj.objective(x0), obj.constraints(x0), obj.gradient(x0), obj.jacobian(x0), obj.hessian(x0, np.ones(nlp.m), 1.0)):
+        jax.block_until_ready(out)
+    prob = cyipopt.Problem(n=nlp.n, m=nlp.m, problem_obj=obj, lb=_finite_or_inf(bounds.xl, -1), ub=_finite_or_inf(bounds.xu, 1),
+                           cl=_finite_or_inf(bounds.gl, -1), cu=_finite_or_inf(bounds.gu, 1))
+    for key, val in {**DEFAULT_OPTIONS, "file_print_level": 0, **(options or {})}.items():
+        prob.add_option(key, val)
+    t0 = time.perf_counter()
+    x, info = prob.solve(x0)
+    return x, info, time.perf_counter() - t0

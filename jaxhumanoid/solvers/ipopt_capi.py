@@ -1,0 +1,178 @@
+"""IPOPT's C interface (``IpStdCInterface.h``, IPOPT 3.14) through ctypes.
+
+The IPOPT library is the one the pinned ``cyipopt-wheels`` package ships. cyipopt's own callbacks
+copy every Jacobian and Hessian value into IPOPT's arrays one Python object at a time, which costs
+milliseconds per iteration at N = 100 (30k Jacobian and 19k Hessian nonzeros); here the values are
+written with one ``memcpy`` into a numpy view of IPOPT's buffer, and IPOPT's ``new_x`` flag tells
+the caller when x has changed.
+
+``solve(...)`` takes plain Python callables:
+
+    f(x) -> float,  g(x) -> (m,),  grad(x) -> (n,),  jac(x) -> (nnz_jac,),
+    hess(x, lam, obj_factor) -> (nnz_hess,),  intermediate(*stats) -> None,  new_point() -> None
+
+A callable that raises stops IPOPT (the callback returns false) and the exception is re-raised
+after ``IpoptSolve`` returns, so an error in the model is never mistaken for a solver status.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import glob
+import os
+from functools import lru_cache
+
+import numpy as np
+
+_idx = ctypes.c_int  # ipindex: IPOPT's default 32-bit build, as in the wheel
+_num = ctypes.c_double
+_P_NUM = ctypes.POINTER(_num)
+_P_IDX = ctypes.POINTER(_idx)
+_cb = ctypes.CFUNCTYPE
+EVAL_F = _cb(ctypes.c_bool, _idx, _P_NUM, ctypes.c_bool, _P_NUM, ctypes.c_void_p)
+EVAL_GRAD_F = _cb(ctypes.c_bool, _idx, _P_NUM, ctypes.c_bool, _P_NUM, ctypes.c_void_p)
+EVAL_G = _cb(ctypes.c_bool, _idx, _P_NUM, ctypes.c_bool, _idx, _P_NUM, ctypes.c_void_p)
+EVAL_JAC_G = _cb(ctypes.c_bool, _idx, _P_NUM, ctypes.c_bool, _idx, _idx, _P_IDX, _P_IDX, _P_NUM, ctypes.c_void_p)
+EVAL_H = _cb(ctypes.c_bool, _idx, _P_NUM, ctypes.c_bool, _num, _idx, _P_NUM, ctypes.c_bool, _idx, _P_IDX, _P_IDX, _P_NUM, ctypes.c_void_p)
+INTERMEDIATE = _cb(ctypes.c_bool, _idx, _idx, _num, _num, _num, _num, _num, _num, _num, _num, _idx, ctypes.c_void_p)
+
+
+def _library_path() -> str:
+    import cyipopt  # the wheel that ships libipopt next to itself
+
+    site = os.path.dirname(os.path.dirname(os.path.abspath(cyipopt.__file__)))
+    found = sorted(glob.glob(os.path.join(site, "cyipopt*.libs", "libipopt*.so*")) + glob.glob(os.path.join(site, "cyipopt*", ".dylibs", "libipopt*.dylib")))
+    if not found and os.path.exists("/proc/self/maps"):  # a cyipopt built against a system IPOPT
+        with open("/proc/self/maps") as fh:
+            found = sorted({line.split()[-1] for line in fh if "libipopt" in line})
+    if not found:
+        raise RuntimeError(f"IPOPT library not found next to cyipopt in {site}: install the pinned cyipopt-wheels")
+    return found[0]
+
+
+@lru_cache(maxsize=1)
+def library() -> ctypes.CDLL:
+    lib = ctypes.CDLL(_library_path())
+    lib.CreateIpoptProblem.restype = ctypes.c_void_p
+    lib.CreateIpoptProblem.argtypes = [_idx, _P_NUM, _P_NUM, _idx, _P_NUM, _P_NUM, _idx, _idx, _idx, EVAL_F, EVAL_G, EVAL_GRAD_F, EVAL_JAC_G, EVAL_H]
+    lib.FreeIpoptProblem.restype = None
+    lib.FreeIpoptProblem.argtypes = [ctypes.c_void_p]
+    for name, kind in (("AddIpoptStrOption", ctypes.c_char_p), ("AddIpoptNumOption", _num), ("AddIpoptIntOption", _idx)):
+        fn = getattr(lib, name)
+        fn.restype = ctypes.c_bool
+        fn.argtypes = [ctypes.c_void_p, ctypes.c_char_p, kind]
+    lib.SetIntermediateCallback.restype = ctypes.c_bool
+    lib.SetIntermediateCallback.argtypes = [ctypes.c_void_p, INTERMEDIATE]
+    lib.IpoptSolve.restype = ctypes.c_int
+    lib.IpoptSolve.argtypes = [ctypes.c_void_p, _P_NUM, _P_NUM, _P_NUM, _P_NUM, _P_NUM, _P_NUM, ctypes.c_void_p]
+    return lib
+
+
+def _ptr(a: np.ndarray):
+    return a.ctypes.data_as(_P_NUM)
+
+
+def _view(ptr, size: int) -> np.ndarray:
+    return np.ctypeslib.as_array(ptr, shape=(size,))
+
+
+def add_option(handle, key: str, val) -> None:
+    """One IPOPT option; raises ValueError naming it when IPOPT rejects the key or value."""
+    lib = library()
+    k = key.encode()
+    if isinstance(val, bool) or not isinstance(val, (int, float, np.integer, np.floating, str)):
+        raise ValueError(f"options[{key!r}]: expected a str, int or float, got {val!r}")
+    if isinstance(val, str):
+        ok = lib.AddIpoptStrOption(handle, k, val.encode())
+    elif isinstance(val, (int, np.integer)):
+        ok = lib.AddIpoptIntOption(handle, k, int(val))
+    else:
+        ok = lib.AddIpoptNumOption(handle, k, float(val))
+    if not ok:
+        raise ValueError(f"options[{key!r}]: IPOPT rejected the option or its value {val!r} (see IPOPT's option list)")
+
+
+def solve(n, m, xl, xu, gl, gu, jac_structure, hess_structure, funcs: dict, options: dict, x0, mult_g=None, mult_x_L=None, mult_x_U=None):
+    """Run ``IpoptSolve``; returns (status code, x, g, obj, mult_g, mult_x_L, mult_x_U)."""
+    lib = library()
+    jr, jc = (np.ascontiguousarray(a, dtype=np.int32) for a in jac_structure)
+    hr, hc = (np.ascontiguousarray(a, dtype=np.int32) for a in hess_structure)
+    nnz_j, nnz_h = jr.size, hr.size
+    errors: list[BaseException] = []
+
+    def guarded(fn):
+        def wrapper(*args):
+            if errors:
+                return False
+            try:
+                return fn(*args)
+            except BaseException as err:  # noqa: BLE001 - re-raised after IpoptSolve
+                errors.append(err)
+                return False
+        return wrapper
+
+    def point(x, new_x):
+        if new_x:
+            funcs["new_point"]()
+        return np.array(_view(x, n))
+
+    @guarded
+    def eval_f(n_, x, new_x, obj, _):
+        obj[0] = funcs["f"](point(x, new_x))
+        return True
+
+    @guarded
+    def eval_g(n_, x, new_x, m_, g, _):
+        _view(g, m)[:] = funcs["g"](point(x, new_x))
+        return True
+
+    @guarded
+    def eval_grad(n_, x, new_x, grad, _):
+        _view(grad, n)[:] = funcs["grad"](point(x, new_x))
+        return True
+
+    @guarded
+    def eval_jac(n_, x, new_x, m_, nele, rows, cols, values, _):
+        if not values:
+            np.ctypeslib.as_array(rows, shape=(nnz_j,))[:] = jr
+            np.ctypeslib.as_array(cols, shape=(nnz_j,))[:] = jc
+        else:
+            _view(values, nnz_j)[:] = funcs["jac"](point(x, new_x))
+        return True
+
+    @guarded
+    def eval_h(n_, x, new_x, obj_factor, m_, lam, new_lam, nele, rows, cols, values, _):
+        if not values:
+            np.ctypeslib.as_array(rows, shape=(nnz_h,))[:] = hr
+            np.ctypeslib.as_array(cols, shape=(nnz_h,))[:] = hc
+        else:
+            _view(values, nnz_h)[:] = funcs["hess"](point(x, new_x), np.array(_view(lam, m)), obj_factor)
+        return True
+
+    @guarded
+    def intermediate(*stats):
+        funcs["intermediate"](*stats[:-1])
+        return True
+
+    # keep the ctypes trampolines alive for the whole solve
+    cbs = (EVAL_F(eval_f), EVAL_G(eval_g), EVAL_GRAD_F(eval_grad), EVAL_JAC_G(eval_jac), EVAL_H(eval_h))
+    bounds = [np.ascontiguousarray(a, dtype=float) for a in (xl, xu, gl, gu)]
+    handle = lib.CreateIpoptProblem(n, _ptr(bounds[0]), _ptr(bounds[1]), m, _ptr(bounds[2]), _ptr(bounds[3]), nnz_j, nnz_h, 0, *cbs)
+    if not handle:
+        raise RuntimeError("IPOPT could not create the problem (CreateIpoptProblem returned NULL)")
+    inter = INTERMEDIATE(intermediate)
+    try:
+        for key, val in options.items():
+            add_option(handle, key, val)
+        lib.SetIntermediateCallback(handle, inter)
+        x = np.array(x0, dtype=float)
+        g, obj = np.zeros(m), np.zeros(1)
+        lam = np.zeros(m) if mult_g is None else np.array(mult_g, dtype=float)
+        zl = np.zeros(n) if mult_x_L is None else np.array(mult_x_L, dtype=float)
+        zu = np.zeros(n) if mult_x_U is None else np.array(mult_x_U, dtype=float)
+        status = lib.IpoptSolve(handle, _ptr(x), _ptr(g), _ptr(obj), _ptr(lam), _ptr(zl), _ptr(zu), None)
+    finally:
+        lib.FreeIpoptProblem(handle)
+    if errors:
+        raise errors[0]
+    return int(status), x, g, float(obj[0]), lam, zl, zu

@@ -1,0 +1,87 @@
+"""The IPOPT path (C interface through ctypes): known optimum and multipliers on HS071, the same
+iterates as cyipopt's own binding of the same IPOPT build, warm start, errors."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxhumanoid  # noqa: F401  (float64)
+from jaxhumanoid.solvers import testproblems as tp
+from jaxhumanoid.solvers.ipopt import solve_cyipopt_reference, solve_ipopt
+from jaxhumanoid.strategy.problem import build_problem
+
+
+def test_hs071_optimum_and_multipliers():
+    nlp, bounds, p, f_star = tp.hs071()
+    r = solve_ipopt(nlp, p, bounds, options={"tol": 1e-10})
+    assert r.status == "Solve_Succeeded" and r.success
+    assert abs(r.objective - f_star) < 1e-7
+    np.testing.assert_allclose(r.x, [1.0, 4.74299963, 3.82114998, 1.37940829], atol=1e-7)
+    np.testing.assert_allclose(r.lam_g, [-0.55229366, 0.16146857], atol=1e-7)
+    grad = np.asarray(nlp.grad(jnp.asarray(r.x), p))
+    J = np.zeros((nlp.m, nlp.n))
+    J[nlp.jac_rows, nlp.jac_cols] = np.asarray(nlp.jac_values(jnp.asarray(r.x), p))
+    np.testing.assert_allclose(grad + J.T @ r.lam_g - r.z_l + r.z_u, 0.0, atol=1e-8)
+    assert r.history["objective"].size == r.iterations + 1
+    assert "EXIT: Optimal Solution Found" in r.log
+    # f+g and grad+J are fused: at most one fused call per trial point plus one per iterate and H
+    assert r.history["eval_calls"] <= 4 * (r.iterations + 1) + 10
+
+
+def test_same_iterates_as_cyipopt_on_the_humanoid():
+    pytest.importorskip("cyipopt")
+    pr = build_problem("T1", "A,F+C,1S", N=8)
+    opts = {"max_iter": 25, "tol": 1e-8}
+    ours = solve_ipopt(pr.nlp, pr.p, pr.bounds, options=opts)
+    x_ref, info, _ = solve_cyipopt_reference(pr.nlp, pr.p, pr.bounds, options=opts)
+    # one IPOPT build, the same callback values: the iterates agree to round-off
+    np.testing.assert_allclose(ours.x, x_ref, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(ours.lam_g, info["mult_g"], rtol=0, atol=1e-6 * max(1.0, np.abs(info["mult_g"]).max()))
+    assert abs(ours.objective - info["obj_val"]) <= 1e-9 * max(1.0, abs(info["obj_val"]))
+
+
+def test_warm_start_from_multipliers_converges_at_once():
+    nlp, bounds, p, _ = tp.hs071()
+    cold = solve_ipopt(nlp, p, bounds, options={"tol": 1e-10})
+    warm = solve_ipopt(nlp, p, bounds, x0=cold.x, warm=cold,
+                       options={"tol": 1e-10, "warm_start_init_point": "yes", "mu_init": 1e-9,
+                                "warm_start_bound_push": 1e-12, "warm_start_mult_bound_push": 1e-12})
+    assert warm.success and warm.iterations <= 2 < cold.iterations
+    np.testing.assert_allclose(warm.x, cold.x, atol=1e-8)
+
+
+def test_errors_are_clear():
+    nlp, bounds, p, _ = tp.hs071()
+    with pytest.raises(ValueError, match="options\\['no_such_option'\\]"):
+        solve_ipopt(nlp, p, bounds, options={"no_such_option": 1})
+    with pytest.raises(ValueError, match="options\\['tol'\\]"):
+        solve_ipopt(nlp, p, bounds, options={"tol": -1.0})
+    with pytest.raises(ValueError, match="x0: expected shape"):
+        solve_ipopt(nlp, p, bounds, x0=np.zeros(3))
+
+
+def test_an_exception_in_a_callback_is_raised_not_reported_as_a_status():
+    nlp, bounds, p, _ = tp.hs071()
+
+    class Boom(RuntimeError):
+        pass
+
+    calls = {"n": 0}
+
+    def g(x, p):
+        return jax.pure_callback(_raise_after(calls, Boom), jax.ShapeDtypeStruct((2,), jnp.float64), x)
+
+    broken = type(nlp)(**{**nlp.__dict__, "g": g, "name": "broken"})
+    # JAX re-wraps an exception raised on the host; its message survives
+    with pytest.raises(Exception, match="model error"):
+        solve_ipopt(broken, p, bounds)
+
+
+def _raise_after(calls, exc):
+    def host(x):
+        calls["n"] += 1
+        if calls["n"] > 2:  # the compile-time warm-up call passes, IPOPT's first calls fail
+            raise exc("model error")
+        return np.zeros(2)
+    return host
