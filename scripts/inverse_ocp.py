@@ -27,21 +27,12 @@ from jaxhumanoid.outputs.cli import enable_compilation_cache
 from jaxhumanoid.strategy.problem import build_problem
 
 
-def initial_weights(w_true, seed: int = 0, lo: float = 2.0, hi: float = 5.0) -> np.ndarray:
-    """w_true with each free weight multiplied or divided (at random) by a factor in [lo, hi]."""
-    rng = np.random.default_rng(seed)
-    free = np.asarray(S.FREE_WEIGHTS)
-    w = np.asarray(w_true, dtype=float).copy()
-    w[free] *= rng.uniform(lo, hi, size=free.size) ** rng.choice([-1.0, 1.0], size=free.size)
-    return w
-
-
 def run(task="T1", N=15, T=5.0, scheme="A,F+C,1S", method="gn", seed=0, max_evals=None, verbose=True) -> dict:
     t_start = time.perf_counter()
     prob = build_problem(task, scheme, N=N, T=T)
     data = S.reference_solve(prob, tol=1e-10, verbose=verbose)
     w_true = np.asarray(prob.p.weights, dtype=float)
-    fit = S.WeightFit(prob, data.x, initial_weights(w_true, seed), verbose=verbose)
+    fit = S.WeightFit(prob, data.x, S.perturbed_weights(w_true, seed), verbose=verbose)
     if method == "gn":
         theta = fit.gauss_newton(max_evals=max_evals or 30)
     elif method == "lbfgs":
