@@ -76,12 +76,8 @@ def local_derivatives(con_r, M: np.ndarray, cost, p_example, seed: int = 0) -> L
 
     # Hessian of lam.c in r (pattern union over two multiplier draws), mapped to w; plus the cost.
     rng = np.random.default_rng(seed)
-    pats = [sparsity.hessian_sparsity(lag_r, nr, jnp.asarray(rng.normal(size=n_con)), p_example, seed=seed + k) for k in range(2)]
-    mask = sparsity.pattern_to_dense(*pats[0], (nr, nr)) | sparsity.pattern_to_dense(*pats[1], (nr, nr))
-    hr, hc = sparsity.dense_to_pattern(np.tril(mask))
-    cost_pats = [sparsity.hessian_sparsity(lambda w, p, last: cost(w, p, last), nw, p_example, last, seed=seed) for last in (False, True)]
-    cmask = sparsity.pattern_to_dense(*cost_pats[0], (nw, nw)) | sparsity.pattern_to_dense(*cost_pats[1], (nw, nw))
-    cr, cc = sparsity.dense_to_pattern(np.tril(cmask))
+    hr, hc = sparsity.hessian_sparsity(lag_r, nr, seed=seed, arg_sets=[(jnp.asarray(rng.normal(size=n_con)), p_example) for _ in range(2)])
+    cr, cc = sparsity.hessian_sparsity(cost, nw, seed=seed, arg_sets=[(p_example, last) for last in (False, True)])
 
     entries = defaultdict(list)
     for e, (i, j) in enumerate(zip(hr, hc)):

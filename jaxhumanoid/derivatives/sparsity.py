@@ -54,22 +54,25 @@ def sample_points(n: int, num_points: int = 3, center=0.0, scale=0.1, seed: int 
     return center + scale * u
 
 
-def _union_nonzeros(dense_fn: Callable, points: np.ndarray, name: str) -> np.ndarray:
-    mask = None
-    for x in points:
-        d = np.asarray(dense_fn(jnp.asarray(x)))
-        if not np.all(np.isfinite(d)):
-            raise ValueError(f"fun: {name} is not finite at a sample point; choose points/center/scale where it is")
-        mask = d != 0 if mask is None else mask | (d != 0)
-    return mask
-
-
-def _sampled(fun, n: int, args, shape_ok, expected: str, derivative):
-    """Jitted dense ``derivative`` of x -> fun(x, *args), after checking fun's output shape."""
-    out = jax.eval_shape(lambda x: fun(x, *args), jax.ShapeDtypeStruct((n,), jnp.float64))
+def _union_nonzeros(fun, n: int, arg_sets, draw, shape_ok, expected: str, derivative, name: str) -> np.ndarray:
+    """Union of the nonzeros of the dense ``derivative`` of x -> fun(x, *args) over the sample
+    points ``draw(k)`` of every argument tuple ``arg_sets[k]``. The derivative is traced and
+    compiled once, with the arguments as jit arguments, however many tuples there are."""
+    arg_sets = [tuple(a) for a in arg_sets]
+    if not arg_sets:
+        raise ValueError("arg_sets: expected at least one tuple of extra arguments")
+    out = jax.eval_shape(lambda x: fun(x, *arg_sets[0]), jax.ShapeDtypeStruct((n,), jnp.float64))
     if not hasattr(out, "shape") or not shape_ok(out.shape):
         raise ValueError(f"fun: expected {expected}, got output {out}")
-    return jax.jit(derivative(lambda x: fun(x, *args)))
+    dense = jax.jit(derivative(fun))
+    mask = None
+    for k, args in enumerate(arg_sets):
+        for x in draw(k):
+            d = np.asarray(dense(jnp.asarray(x), *args))
+            if not np.all(np.isfinite(d)):
+                raise ValueError(f"fun: {name} is not finite at a sample point; choose points/center/scale where it is")
+            mask = d != 0 if mask is None else mask | (d != 0)
+    return mask
 
 
 def jacobian_sparsity(
@@ -81,14 +84,20 @@ def jacobian_sparsity(
     center=0.0,
     scale=0.1,
     seed: int = 0,
+    arg_sets=None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Pattern of d fun(x, *args) / dx for fun: (n,) -> (m,).
 
     Returns (rows, cols), int64 arrays of shape (nnz,), sorted row-major. ``points`` (shape
     (num_points, n)) overrides the random sample drawn from ``center``/``scale``/``seed``.
+    ``arg_sets`` (instead of ``*args``): a list of argument tuples; the pattern is the union over
+    them, tuple k sampled with seed ``seed + k``.
     """
-    jac = _sampled(fun, n, args, lambda shape: len(shape) == 1, "a function returning a 1-D array", jax.jacfwd)
-    rows, cols = np.nonzero(_union_nonzeros(jac, sample_points(n, num_points, center, scale, seed, points), "the Jacobian"))
+    mask = _union_nonzeros(
+        fun, n, _arg_sets(args, arg_sets), lambda k: sample_points(n, num_points, center, scale, seed + k, points),
+        lambda shape: len(shape) == 1, "a function returning a 1-D array", jax.jacfwd, "the Jacobian",
+    )
+    rows, cols = np.nonzero(mask)
     return rows.astype(np.int64), cols.astype(np.int64)
 
 
@@ -101,16 +110,28 @@ def hessian_sparsity(
     center=0.0,
     scale=0.1,
     seed: int = 0,
+    arg_sets=None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Lower triangle of the pattern of d^2 fun(x, *args) / dx^2 for scalar fun: (n,) -> ().
 
     Returns (rows, cols), int64 arrays of shape (nnz,) with rows >= cols, sorted row-major. The
     pattern is symmetrised before taking the triangle, so round-off asymmetry cannot drop an entry.
+    ``arg_sets`` as in ``jacobian_sparsity`` (e.g. several random multiplier draws).
     """
-    hess = _sampled(fun, n, args, lambda shape: shape == (), "a scalar-valued function", jax.hessian)
-    mask = _union_nonzeros(hess, sample_points(n, num_points, center, scale, seed, points), "the Hessian")
+    mask = _union_nonzeros(
+        fun, n, _arg_sets(args, arg_sets), lambda k: sample_points(n, num_points, center, scale, seed + k, points),
+        lambda shape: shape == (), "a scalar-valued function", jax.hessian, "the Hessian",
+    )
     rows, cols = np.nonzero(np.tril(mask | mask.T))
     return rows.astype(np.int64), cols.astype(np.int64)
+
+
+def _arg_sets(args, arg_sets):
+    if arg_sets is None:
+        return [args]
+    if args:
+        raise ValueError("arg_sets: give the extra arguments either as *args or as arg_sets, not both")
+    return arg_sets
 
 
 def pattern_to_dense(rows, cols, shape: tuple[int, int]) -> np.ndarray:
