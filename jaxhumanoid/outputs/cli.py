@@ -149,7 +149,8 @@ def cmd_check(args) -> int:
         from jaxhumanoid import sensitivity
 
         scheme = f"{args.scheme or 'A,F+C'},1S"
-        rows, results = sensitivity.sensitivity_table(tasks, scheme, N=args.N or 15, eps=args.eps)
+        rows, outs = sensitivity.sensitivity_table(tasks, scheme, N=args.N or 15, eps=args.eps)
+        results = {"rows": rows, "results": outs}
     else:
         schemes = [args.scheme] if args.scheme else ["E,F", "A,F", "A,F+C"]
         cases = [(t, f"{s},1S", False) for t in tasks for s in schemes]
@@ -204,7 +205,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--points", type=int, default=2, help="random points per case")
     p.add_argument("--sensitivities", action="store_true", help="instead: KKT sensitivities of the optimal trajectory against finite differences of re-solves (1S, every parameter group)")
     p.add_argument("--eps", type=float, default=1e-5, help="finite-difference step of --sensitivities (relative)")
-    p.add_argument("--out", default=None, help="also write the rows (with --sensitivities: the full results) as JSON")
+    p.add_argument("--out", default=None, help="also write the rows (with --sensitivities: and the full results) as JSON")
     p.set_defaults(func=cmd_check)
     return parser
 
