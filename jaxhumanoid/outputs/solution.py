@@ -39,6 +39,7 @@ class StageStats:
     max_constraint_violation: float
     n_variables: int
     n_constraints: int
+    attempts: int = 1  # solver runs (a stage-1 fallback adds one)
 
 
 @dataclasses.dataclass
