@@ -131,3 +131,26 @@ def test_warm_start_and_max_iter():
 def test_bad_options_raise(bad, match):
     with pytest.raises(ValueError, match=match):
         IPMOptions(**bad) if "no_such_option" not in bad else solve_ipm(*tp.hs071()[:1], None, None, options=bad)
+
+
+def test_humanoid_pseudo_static_stage_small_n():
+    """Stage 1 of 2S on T1 (pseudo-static (8), relaxed contact law) at N1 = 10 with the 2S stage-1
+    options: a fixed initial state makes the first KKT pivot block structurally singular, which
+    the elimination order must avoid (kkt.build_structure)."""
+    from jaxhumanoid.model.params import ContactParams
+    from jaxhumanoid.strategy import solve as strat
+    from jaxhumanoid.strategy.problem import build_problem
+
+    relaxed = ContactParams.relaxed()
+    final = build_problem("T1", "A,F+C,2S", N=20)
+    q1, _ = strat.reseat_for_contact(final.p, final.p.q_start, final.layout.active, relaxed)
+    prob = build_problem("T1", "A,F+C,2S", N=10, pseudo_static=True, contact=relaxed, q_start=q1)
+    r = solve_ipm(prob.nlp, prob.p, prob.bounds, options=strat.STAGE1_DEFAULTS)
+    assert r.status == "Solve_Succeeded", r.log
+    assert r.max_constraint_violation <= 1e-6
+    assert r.iterations <= 400
+    # the reported multipliers make the Lagrangian stationary (IPOPT's sign convention)
+    grad = np.asarray(prob.nlp.grad(jnp.asarray(r.x), prob.p))
+    jt = np.zeros(prob.nlp.n)
+    np.add.at(jt, prob.nlp.jac_cols, np.asarray(prob.nlp.jac_values(jnp.asarray(r.x), prob.p)) * r.lam_g[prob.nlp.jac_rows])
+    assert np.max(np.abs(grad + jt - r.z_l + r.z_u)) <= 1e-5 * max(1.0, np.max(np.abs(grad)))

@@ -97,3 +97,43 @@ def test_structure_rejects_non_tridiagonal_coupling():
     with pytest.raises(ValueError, match="block-tridiagonal"):
         kkt.build_structure(3, 1, np.array([0, 1, 2]), np.array([0]), np.arange(3), np.arange(3),
                             np.array([0, 0]), np.array([0, 2]))
+
+
+def ocp_like_pattern(rng, S, nx, nc, n0):
+    """Stage 0 has only n0 < nc variables (a fixed initial state), so the forward pivot block D_0
+    is structurally singular; the rows of stage k act on stage k+1 through an identity-like part."""
+    var_stage = np.concatenate([np.zeros(n0, np.int64), np.repeat(np.arange(1, S), nx)])
+    con_stage = np.repeat(np.arange(S - 1), nc)
+    first = np.concatenate([[0], np.cumsum([n0] + [nx] * (S - 1))])
+    jr, jc = [], []
+    for j, k in enumerate(con_stage):
+        jr.append(j)
+        jc.append(first[k + 1] + j % nc)                      # x_{k+1} term
+        own = np.arange(first[k], first[k + 1])
+        for i in rng.choice(own, size=min(2, own.size), replace=False):
+            jr.append(j)
+            jc.append(i)
+    n = var_stage.size
+    hr, hc = np.arange(n), np.arange(n)
+    jj = np.unique(np.stack([jr, jc], 1), axis=0)
+    return n, con_stage.size, var_stage, con_stage, hr, hc, jj[:, 0], jj[:, 1]
+
+
+def test_structurally_singular_first_block_is_eliminated_last():
+    rng = np.random.default_rng(7)
+    n, m, vs, cs, hr, hc, jr, jc = ocp_like_pattern(rng, S=8, nx=5, nc=4, n0=2)
+    st = kkt.build_structure(n, m, vs, cs, hr, hc, jr, jc)
+    assert np.all(st.var_pos[vs == 0] // st.nb == st.S - 1), "stage 0 must be the last pivot block"
+    hv = rng.uniform(0.5, 2.0, hr.size)
+    jv = rng.standard_normal(jr.size)
+    dc = np.zeros(m)                                           # equality rows, no regularisation
+    A, B = kkt.assemble(st, jnp.asarray(hv), jnp.asarray(jv), jnp.zeros(n), jnp.asarray(dc))
+    K = sparse_kkt(n, m, hr, hc, hv, jr, jc, jv, np.zeros(n), dc)
+    ev = np.linalg.eigvalsh(K.toarray())
+    fac = kkt.factor(st, A, B)
+    assert (int(fac.npos), int(fac.nneg), int(fac.nzero)) == (int(np.sum(ev > 0)), int(np.sum(ev < 0)), 0)
+    assert bool(kkt.inertia_ok(st, fac))
+    r = rng.standard_normal(n + m)
+    ux, uc = kkt.solve(st, fac, A, B, jnp.asarray(r[:n]), jnp.asarray(r[n:]))
+    np.testing.assert_allclose(np.concatenate([ux, uc]), spla.spsolve(K, r), rtol=1e-8, atol=1e-8)
+

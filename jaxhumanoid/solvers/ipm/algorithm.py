@@ -317,7 +317,7 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         S_, nb = st.S, st.nb
         base = assemble_base(P, Wvals, jac)
         z3 = jnp.zeros((S_, nb, nb))
-        fac0 = kkt.Factor(z3, z3, jnp.zeros((), jnp.int64), jnp.zeros((), jnp.int64), jnp.zeros((), jnp.int64),
+        fac0 = kkt.Factor(z3, jnp.zeros((S_, st.b_rows.size, nb)), jnp.zeros((), jnp.int64), jnp.zeros((), jnp.int64), jnp.zeros((), jnp.int64),
                           jnp.ones((S_, nb)))
         zero = jnp.zeros(())
 

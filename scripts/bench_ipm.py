@@ -1,0 +1,180 @@
+"""Benchmark: the own interior-point method (IPM) against IPOPT on the same NLPs, in one run.
+
+    python scripts/bench_ipm.py [--tasks T1 T2 T3 T4] [--runs 3] [--batch 32] [--iters 40]
+                                [--out results/bench_ipm.json] [--skip-compile] [--skip-batch]
+
+1. Per-iteration time at N = 100 (T1, the dynamic stage-2 NLP from its initial guess, ``--iters``
+   iterations, medians of ``--runs``): IPM and IPOPT, and their ratio.
+2. The whole 2S solve (A,F+C,2S) per task with each solver: stage statuses and iterations, solve
+   time (compile excluded), objective relative difference and max |q_ipm - q_ipopt|.
+3. IPM compile time of the N = 100 NLP in fresh processes: cold (empty persistent JAX cache) and
+   warm (the cache the cold run filled).
+4. Throughput of a ``vmap`` batch of ``--batch`` stage-1 (pseudo-static, N1 = 30) problems of T1
+   with perturbed cost weights (``batch_solve_ipm``), against the same problems one after another.
+Set OMP_NUM_THREADS=1 when comparing with other runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import jaxhumanoid  # noqa: F401
+from jaxhumanoid.model.params import ContactParams
+from jaxhumanoid.ocp.scheme import parse_scheme
+from jaxhumanoid.outputs.cli import enable_compilation_cache
+from jaxhumanoid.solvers.ipm import batch_solve_ipm, solve_ipm
+from jaxhumanoid.solvers.ipopt import solve_ipopt
+from jaxhumanoid.strategy import solve as strat
+from jaxhumanoid.strategy.problem import build_problem
+
+from _bench import write
+
+SCHEME = "A,F+C,2S"
+
+
+def per_iteration(runs: int, iters: int) -> dict:
+    prob = build_problem("T1", parse_scheme(SCHEME), N=100)
+    out = {}
+    for name, fn in (("ipm", solve_ipm), ("ipopt", solve_ipopt)):
+        if name == "ipopt":                 # jit the evaluators (the IPM reports compile apart)
+            fn(prob.nlp, prob.p, prob.bounds, options={"max_iter": iters})
+        ms = []
+        for _ in range(runs):
+            r = fn(prob.nlp, prob.p, prob.bounds, options={"max_iter": iters})
+            ms.append(r.solve_time_s / max(r.iterations, 1) * 1e3)
+        out[name] = {"ms_per_iteration_median": float(np.median(ms)), "samples_ms": ms, "iterations": int(r.iterations)}
+    out["ratio_ipm_over_ipopt"] = out["ipm"]["ms_per_iteration_median"] / out["ipopt"]["ms_per_iteration_median"]
+    return out
+
+
+def whole_2s(task: str, runs: int) -> dict:
+    res = {}
+    sols = {}
+    for solver in ("ipm", "ipopt"):
+        times, compile_s, sol = [], None, None
+        for _ in range(runs):
+            sol = strat.solve(task, SCHEME, solver=solver)
+            times.append(sum(s.solve_time_s for s in sol.stages))
+            compile_s = sum(s.compile_time_s for s in sol.stages) if compile_s is None else compile_s
+        sols[solver] = sol
+        res[solver] = {
+            "status": [s.status for s in sol.stages],
+            "iterations": [s.iterations for s in sol.stages],
+            "solve_s_median": float(np.median(times)),
+            "setup_and_compile_s_first_run": compile_s,
+            "objective": sol.objective,
+        }
+    a, b = sols["ipm"], sols["ipopt"]
+    res["objective_rel_diff"] = abs(a.objective - b.objective) / max(abs(b.objective), 1e-12)
+    res["max_abs_dq_rad"] = float(np.max(np.abs(a.q - b.q)))
+    return res
+
+
+_CHILD = r"""
+import json, sys
+import jaxhumanoid
+from jaxhumanoid.outputs.cli import enable_compilation_cache
+from jaxhumanoid.ocp.scheme import parse_scheme
+from jaxhumanoid.solvers.ipm import solve_ipm
+from jaxhumanoid.strategy.problem import build_problem
+enable_compilation_cache(sys.argv[1])
+prob = build_problem("T1", parse_scheme("A,F+C,2S"), N=100)
+r = solve_ipm(prob.nlp, prob.p, prob.bounds, options={"max_iter": 1})
+print(json.dumps({"compile_s": r.compile_time_s}))
+"""
+
+
+def compile_times() -> dict:
+    """IPM compile time in two fresh processes sharing a new persistent cache: cold, then warm."""
+    out = {}
+    with tempfile.TemporaryDirectory() as cache:
+        for label in ("cold", "warm"):
+            t0 = time.perf_counter()
+            p = subprocess.run([sys.executable, "-c", _CHILD, cache], capture_output=True, text=True, check=True)
+            out[f"{label}_compile_s"] = json.loads(p.stdout.strip().splitlines()[-1])["compile_s"]
+            out[f"{label}_process_s"] = time.perf_counter() - t0
+    return out
+
+
+def batch_throughput(batch: int) -> dict:
+    """A vmap batch of stage-1 problems of T1 with log-normally perturbed weights (sigma = 0.2)."""
+    final = build_problem("T1", parse_scheme(SCHEME), N=100)
+    relaxed = ContactParams.relaxed()
+    q1, _ = strat.reseat_for_contact(final.p, final.p.q_start, final.layout.active, relaxed)
+    prob = build_problem("T1", parse_scheme(SCHEME), N=strat.STAGE1_N, pseudo_static=True, contact=relaxed, q_start=q1)
+    rng = np.random.default_rng(0)
+    weights = np.asarray(prob.p.weights)[None] * np.exp(0.2 * rng.standard_normal((batch, np.size(prob.p.weights))))
+    p_batch = jax.tree.map(lambda a: jnp.broadcast_to(a, (batch,) + jnp.shape(a)), prob.p)
+    p_batch = dataclasses.replace(p_batch, weights=jnp.asarray(weights))
+    opts = dict(strat.STAGE1_DEFAULTS)
+    batch_solve_ipm(prob.nlp, jax.tree.map(lambda a: a[:batch], p_batch), prob.bounds, options=opts)  # compile
+    t0 = time.perf_counter()
+    res_b = batch_solve_ipm(prob.nlp, p_batch, prob.bounds, options=opts)
+    t_batch = time.perf_counter() - t0
+    p_one = jax.tree.map(lambda a: a[0], p_batch)
+    solve_ipm(prob.nlp, p_one, prob.bounds, options=opts)                                                # compile
+    t0 = time.perf_counter()
+    res_s = [solve_ipm(prob.nlp, jax.tree.map(lambda a: a[i], p_batch), prob.bounds, options=opts) for i in range(batch)]
+    t_seq = time.perf_counter() - t0
+    return {
+        "problem": f"T1 stage 1 (pseudo-static, N={strat.STAGE1_N}), weights x exp(0.2 N(0,1))",
+        "batch": batch,
+        "batch_s": t_batch,
+        "sequential_s": t_seq,
+        "speedup_batch_over_sequential": t_seq / t_batch,
+        "batch_success": int(sum(r.success for r in res_b)),
+        "sequential_success": int(sum(r.success for r in res_s)),
+        "batch_iterations_max": int(max(r.iterations for r in res_b)),
+        "sequential_iterations_sum": int(sum(r.iterations for r in res_s)),
+    }
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--tasks", nargs="*", default=["T1", "T2", "T3", "T4"])
+    ap.add_argument("--runs", type=int, default=3)
+    ap.add_argument("--iters", type=int, default=40)
+    ap.add_argument("--batch", type=int, default=32)
+    ap.add_argument("--out", default="results/bench_ipm.json")
+    ap.add_argument("--skip-compile", action="store_true")
+    ap.add_argument("--skip-batch", action="store_true")
+    args = ap.parse_args()
+    enable_compilation_cache()
+    results = {"omp_num_threads": os.environ.get("OMP_NUM_THREADS")}
+
+    results["per_iteration_N100"] = pi = per_iteration(args.runs, args.iters)
+    print(f"per iteration at N=100: IPM {pi['ipm']['ms_per_iteration_median']:.1f} ms, "
+          f"IPOPT {pi['ipopt']['ms_per_iteration_median']:.1f} ms, ratio {pi['ratio_ipm_over_ipopt']:.2f}")
+
+    results["whole_2s"] = {}
+    print(f"{'task':5s} {'IPM status':>34s} {'its':>9s} {'s':>6s} | {'IPOPT its':>9s} {'s':>6s} | {'rel obj':>8s} {'max dq':>7s}")
+    for task in args.tasks:
+        r = results["whole_2s"][task] = whole_2s(task, args.runs)
+        a, b = r["ipm"], r["ipopt"]
+        print(f"{task:5s} {'+'.join(s[:16] for s in a['status']):>34s} {'+'.join(map(str, a['iterations'])):>9s} "
+              f"{a['solve_s_median']:6.2f} | {'+'.join(map(str, b['iterations'])):>9s} {b['solve_s_median']:6.2f} | "
+              f"{r['objective_rel_diff']:8.1e} {r['max_abs_dq_rad']:7.3f}")
+
+    if not args.skip_compile:
+        results["compile"] = c = compile_times()
+        print(f"IPM compile at N=100: cold {c['cold_compile_s']:.1f} s, warm (persistent cache) {c['warm_compile_s']:.1f} s")
+    if not args.skip_batch:
+        results["batch"] = bt = batch_throughput(args.batch)
+        print(f"vmap batch of {bt['batch']}: {bt['batch_s']:.1f} s vs sequential {bt['sequential_s']:.1f} s "
+              f"(x{bt['speedup_batch_over_sequential']:.2f}); success {bt['batch_success']}/{bt['batch']}")
+    write({"scheme": SCHEME, "N": 100, "results": results}, args.out)
+
+
+if __name__ == "__main__":
+    main()
