@@ -10,6 +10,7 @@ intermediate callback.
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import tempfile
 import time
@@ -77,6 +78,22 @@ def captured_log(opts: dict, prefix: str = "ipopt_"):
             os.remove(tmp)
 
 
+# Jitted once per NLP (static, hashed by identity), so re-solves of one problem skip tracing.
+@functools.partial(jax.jit, static_argnums=0)
+def _fg(nlp: NLP, x, p):
+    return nlp.f(x, p), nlp.g(x, p)
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _dj(nlp: NLP, x, p):
+    return nlp.grad(x, p), nlp.jac_values(x, p)
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _hess(nlp: NLP, x, lam, sigma, p):
+    return nlp.hess_values(x, lam, sigma, p)
+
+
 class _Callbacks:
     """What IPOPT calls, as jitted JAX functions fed numpy arrays.
 
@@ -87,9 +104,9 @@ class _Callbacks:
 
     def __init__(self, nlp: NLP, p):
         self.p = p
-        self._fg = jax.jit(lambda x, p: (nlp.f(x, p), nlp.g(x, p)))
-        self._dj = jax.jit(lambda x, p: (nlp.grad(x, p), nlp.jac_values(x, p)))
-        self._hess = jax.jit(nlp.hess_values)
+        self._fg = functools.partial(_fg, nlp)
+        self._dj = functools.partial(_dj, nlp)
+        self._hess = functools.partial(_hess, nlp)
         self._cache: dict = {}
         self.history: dict[str, list] = {k: [] for k in ("objective", "inf_pr", "inf_du", "mu", "d_norm", "regularization", "alpha_du", "alpha_pr", "ls_trials")}
         self.eval_time = 0.0
