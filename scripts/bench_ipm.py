@@ -3,7 +3,7 @@
     python scripts/bench_ipm.py [--tasks T1 T2 T3 T4] [--runs 3] [--batch 32] [--iters 40]
                                 [--out results/bench_ipm.json] [--skip-compile] [--skip-batch]
 
-1. Per-iteration time at N = 100 (T1, the dynamic stage-2 NLP from its initial guess, ``--iters``
+1. Per-iteration time at N = 100 (T1's dynamic stage-2 NLP from the 2S warm start, ``--iters``
    iterations, medians of ``--runs``): IPM and IPOPT, and their ratio.
 2. The whole 2S solve (A,F+C,2S) per task with each solver: stage statuses and iterations, solve
    time (compile excluded), objective relative difference and max |q_ipm - q_ipopt|.
@@ -31,6 +31,7 @@ import numpy as np
 
 import jaxhumanoid  # noqa: F401
 from jaxhumanoid.model.params import ContactParams
+from jaxhumanoid.ocp import transcription as tr
 from jaxhumanoid.ocp.scheme import parse_scheme
 from jaxhumanoid.outputs.cli import enable_compilation_cache
 from jaxhumanoid.solvers.ipm import batch_solve_ipm, solve_ipm
@@ -43,15 +44,30 @@ from _bench import write
 SCHEME = "A,F+C,2S"
 
 
+def stage1_problem(task: str, N1: int = strat.STAGE1_N):
+    """Stage 1 of 2S (pseudo-static, relaxed contact law, re-seated start) and the stage-2 problem."""
+    final = build_problem(task, parse_scheme(SCHEME), N=100)
+    relaxed = ContactParams.relaxed()
+    q1, _ = strat.reseat_for_contact(final.p, final.p.q_start, final.layout.active, relaxed)
+    first = build_problem(task, parse_scheme(SCHEME), N=N1, pseudo_static=True, contact=relaxed, q_start=q1)
+    return first, final
+
+
 def per_iteration(runs: int, iters: int) -> dict:
-    prob = build_problem("T1", parse_scheme(SCHEME), N=100)
+    """Both solvers on T1's stage-2 NLP from the same warm start (IPOPT's stage-1 solution,
+    interpolated, as 2S does) with the 2S stage-2 options: the iterations that 2S spends."""
+    first, prob = stage1_problem("T1")
+    r1 = solve_ipopt(first.nlp, first.p, first.bounds, options=strat.STAGE1_DEFAULTS)
+    Zf = strat.interpolate_full(first.full(r1.x), float(prob.p.T), prob.layout)
+    x0 = np.clip(np.asarray(tr.free_from_full(prob.layout, Zf)), prob.bounds.xl, prob.bounds.xu)
+    opts = {**strat.STAGE2_DEFAULTS, "max_iter": iters}
     out = {}
     for name, fn in (("ipm", solve_ipm), ("ipopt", solve_ipopt)):
         if name == "ipopt":                 # jit the evaluators (the IPM reports compile apart)
-            fn(prob.nlp, prob.p, prob.bounds, options={"max_iter": iters})
+            fn(prob.nlp, prob.p, prob.bounds, x0=x0, options=opts)
         ms = []
         for _ in range(runs):
-            r = fn(prob.nlp, prob.p, prob.bounds, options={"max_iter": iters})
+            r = fn(prob.nlp, prob.p, prob.bounds, x0=x0, options=opts)
             ms.append(r.solve_time_s / max(r.iterations, 1) * 1e3)
         out[name] = {"ms_per_iteration_median": float(np.median(ms)), "samples_ms": ms, "iterations": int(r.iterations)}
     out["ratio_ipm_over_ipopt"] = out["ipm"]["ms_per_iteration_median"] / out["ipopt"]["ms_per_iteration_median"]
@@ -109,10 +125,7 @@ def compile_times() -> dict:
 
 def batch_throughput(batch: int) -> dict:
     """A vmap batch of stage-1 problems of T1 with log-normally perturbed weights (sigma = 0.2)."""
-    final = build_problem("T1", parse_scheme(SCHEME), N=100)
-    relaxed = ContactParams.relaxed()
-    q1, _ = strat.reseat_for_contact(final.p, final.p.q_start, final.layout.active, relaxed)
-    prob = build_problem("T1", parse_scheme(SCHEME), N=strat.STAGE1_N, pseudo_static=True, contact=relaxed, q_start=q1)
+    prob, _ = stage1_problem("T1")
     rng = np.random.default_rng(0)
     weights = np.asarray(prob.p.weights)[None] * np.exp(0.2 * rng.standard_normal((batch, np.size(prob.p.weights))))
     p_batch = jax.tree.map(lambda a: jnp.broadcast_to(a, (batch,) + jnp.shape(a)), prob.p)
@@ -149,13 +162,15 @@ def main():
     ap.add_argument("--out", default="results/bench_ipm.json")
     ap.add_argument("--skip-compile", action="store_true")
     ap.add_argument("--skip-batch", action="store_true")
+    ap.add_argument("--skip-per-iteration", action="store_true")
     args = ap.parse_args()
     enable_compilation_cache()
     results = {"omp_num_threads": os.environ.get("OMP_NUM_THREADS")}
 
-    results["per_iteration_N100"] = pi = per_iteration(args.runs, args.iters)
-    print(f"per iteration at N=100: IPM {pi['ipm']['ms_per_iteration_median']:.1f} ms, "
-          f"IPOPT {pi['ipopt']['ms_per_iteration_median']:.1f} ms, ratio {pi['ratio_ipm_over_ipopt']:.2f}")
+    if not args.skip_per_iteration:
+        results["per_iteration_N100"] = pi = per_iteration(args.runs, args.iters)
+        print(f"per iteration at N=100: IPM {pi['ipm']['ms_per_iteration_median']:.1f} ms, "
+              f"IPOPT {pi['ipopt']['ms_per_iteration_median']:.1f} ms, ratio {pi['ratio_ipm_over_ipopt']:.2f}")
 
     results["whole_2s"] = {}
     print(f"{'task':5s} {'IPM status':>34s} {'its':>9s} {'s':>6s} | {'IPOPT its':>9s} {'s':>6s} | {'rel obj':>8s} {'max dq':>7s}")
