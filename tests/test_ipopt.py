@@ -1,6 +1,8 @@
 """The IPOPT path (C interface through ctypes): known optimum and multipliers on HS071, the same
 iterates as cyipopt's own binding of the same IPOPT build, warm start, errors."""
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -72,7 +74,7 @@ def test_an_exception_in_a_callback_is_raised_not_reported_as_a_status():
     def g(x, p):
         return jax.pure_callback(_raise_after(calls, Boom), jax.ShapeDtypeStruct((2,), jnp.float64), x)
 
-    broken = type(nlp)(**{**nlp.__dict__, "g": g, "name": "broken"})
+    broken = dataclasses.replace(nlp, g=g, name="broken")
     # JAX re-wraps an exception raised on the host; its message survives
     with pytest.raises(Exception, match="model error"):
         solve_ipopt(broken, p, bounds)
