@@ -72,25 +72,10 @@ def test_staged_cartpole_block_tridiagonal_against_ipopt():
     # fixed initial / terminal states stay exactly at their values
     np.testing.assert_array_equal(r.x[:4], bounds.xl[:4])
     np.testing.assert_array_equal(r.x[-4:], bounds.xl[-4:])
-    cyipopt = pytest.importorskip("cyipopt")
-    import jax
+    pytest.importorskip("cyipopt")
+    from jaxhumanoid.solvers.ipopt import solve_cyipopt_reference
 
-    f, g, gr, jv, hv = (jax.jit(fn) for fn in (nlp.f, nlp.g, nlp.grad, nlp.jac_values, nlp.hess_values))
-
-    class Prob:
-        def objective(self, x): return float(f(x, p))
-        def gradient(self, x): return np.asarray(gr(x, p))
-        def constraints(self, x): return np.asarray(g(x, p))
-        def jacobian(self, x): return np.asarray(jv(x, p))
-        def jacobianstructure(self): return nlp.jac_rows, nlp.jac_cols
-        def hessian(self, x, lam, sigma): return np.asarray(hv(x, lam, sigma, p))
-        def hessianstructure(self): return nlp.hess_rows, nlp.hess_cols
-
-    prob = cyipopt.Problem(n=nlp.n, m=nlp.m, problem_obj=Prob(), lb=bounds.xl, ub=bounds.xu,
-                           cl=bounds.gl, cu=bounds.gu)
-    prob.add_option("print_level", 0)
-    prob.add_option("fixed_variable_treatment", "make_parameter")
-    x_ip, info = prob.solve(bounds.x0)
+    _, info, _ = solve_cyipopt_reference(nlp, p, bounds)
     assert info["status"] == 0
     assert abs(r.objective - info["obj_val"]) <= 1e-6 * abs(info["obj_val"])
 
