@@ -63,6 +63,7 @@ along the data's branch of local optima (``continuation_solve``).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 import warnings
 
@@ -203,49 +204,57 @@ def identify_active_set(bounds: Bounds, x, g_val, lam_g, z_l, z_u, sc_tol: float
 
 
 # ----------------------------------------------------------------------------------------------
-# JAX pieces (cached per NLP)
+# JAX pieces: jitted once per NLP (a static argument, hashed by identity), as in solvers.ipopt
 
-_JAX_CACHE: dict = {}
+
+def _grad_lag(nlp, x, lam, p):
+    return jax.grad(lambda xx: nlp.f(xx, p) + jnp.dot(lam, nlp.g(xx, p)))(x)
+
+
+_grad_lag_jit = jax.jit(_grad_lag, static_argnums=0)
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _rhs_jvp(nlp, x, lam, p, dp):
+    """(d_p grad_x L . dp, d_p g . dp) at fixed x, lam."""
+    _, (dgl, dg) = jax.jvp(lambda pp: (_grad_lag(nlp, x, lam, pp), nlp.g(x, pp)), (p,), (dp,))
+    return dgl, dg
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _pullback(nlp, x, lam, p, v_x, v_lam):
+    """grad_p [v_x . grad_x L + v_lam . g] at fixed x, lam (a pytree like p)."""
+    return jax.grad(lambda pp: jnp.dot(v_x, _grad_lag(nlp, x, lam, pp)) + jnp.dot(v_lam, nlp.g(x, pp)))(p)
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _lag_grad_p(nlp, x, lam, p):
+    """Envelope: grad_p L = grad_p f + lam . grad_p g at fixed x, lam."""
+    return jax.grad(lambda pp: nlp.f(x, pp) + jnp.dot(lam, nlp.g(x, pp)))(p)
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _f_jvp(nlp, x, p, dx, dp):
+    return jax.jvp(nlp.f, (x, p), (dx, dp))[1]
+
+
+@functools.partial(jax.jit, static_argnums=(0, 1))
+def _call(nlp, name, *args):
+    return getattr(nlp, name)(*args)
 
 
 def _jax_fns(nlp):
-    key = id(nlp)
-    hit = _JAX_CACHE.get(key)
-    if hit is not None and hit[0] is nlp:
-        return hit[1]
-
-    def grad_lag(x, lam, p):
-        return jax.grad(lambda xx: nlp.f(xx, p) + jnp.dot(lam, nlp.g(xx, p)))(x)
-
-    def rhs_jvp(x, lam, p, dp):
-        """(d_p grad_x L . dp, d_p g . dp) at fixed x, lam."""
-        _, (dgl, dg) = jax.jvp(lambda pp: (grad_lag(x, lam, pp), nlp.g(x, pp)), (p,), (dp,))
-        return dgl, dg
-
-    def pullback(x, lam, p, v_x, v_lam):
-        """grad_p [v_x . grad_x L + v_lam . g] at fixed x, lam (a pytree like p)."""
-        return jax.grad(lambda pp: jnp.dot(v_x, grad_lag(x, lam, pp)) + jnp.dot(v_lam, nlp.g(x, pp)))(p)
-
-    def lag_grad_p(x, lam, p):
-        """Envelope: grad_p L = grad_p f + lam . grad_p g at fixed x, lam."""
-        return jax.grad(lambda pp: nlp.f(x, pp) + jnp.dot(lam, nlp.g(x, pp)))(p)
-
-    def f_jvp(x, p, dx, dp):
-        return jax.jvp(nlp.f, (x, p), (dx, dp))[1]
-
-    fns = dict(
-        rhs_jvp=jax.jit(rhs_jvp),
-        pullback=jax.jit(pullback),
-        lag_grad_p=jax.jit(lag_grad_p),
-        f_jvp=jax.jit(f_jvp),
-        grad_lag=jax.jit(grad_lag),
-        g=jax.jit(nlp.g),
-        f=jax.jit(nlp.f),
-        jac=jax.jit(nlp.jac_values),
-        hess=jax.jit(nlp.hess_values),
+    return dict(
+        rhs_jvp=functools.partial(_rhs_jvp, nlp),
+        pullback=functools.partial(_pullback, nlp),
+        lag_grad_p=functools.partial(_lag_grad_p, nlp),
+        f_jvp=functools.partial(_f_jvp, nlp),
+        grad_lag=functools.partial(_grad_lag_jit, nlp),
+        g=functools.partial(_call, nlp, "g"),
+        f=functools.partial(_call, nlp, "f"),
+        jac=functools.partial(_call, nlp, "jac_values"),
+        hess=functools.partial(_call, nlp, "hess_values"),
     )
-    _JAX_CACHE[key] = (nlp, fns)
-    return fns
 
 
 def _as_float_tree(p):

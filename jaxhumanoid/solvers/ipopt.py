@@ -104,8 +104,7 @@ class _Callbacks:
 
     def __init__(self, nlp: NLP, p):
         self.p = p
-        self._fg = functools.partial(_fg, nlp)
-        self._dj = functools.partial(_dj, nlp)
+        self._pairs = {"fg": functools.partial(_fg, nlp), "dj": functools.partial(_dj, nlp)}
         self._hess = functools.partial(_hess, nlp)
         self._cache: dict = {}
         self.history: dict[str, list] = {k: [] for k in ("objective", "inf_pr", "inf_du", "mu", "d_norm", "regularization", "alpha_du", "alpha_pr", "ls_trials")}
@@ -115,7 +114,7 @@ class _Callbacks:
     def warm_up(self, x, m: int) -> float:
         """Compile every callback once; returns the compile time."""
         t0 = time.perf_counter()
-        for out in (self._fg(x, self.p), self._dj(x, self.p), self._hess(x, np.ones(m), 1.0, self.p)):
+        for out in (*(fn(x, self.p) for fn in self._pairs.values()), self._hess(x, np.ones(m), 1.0, self.p)):
             jax.block_until_ready(out)
         return time.perf_counter() - t0
 
@@ -129,17 +128,17 @@ class _Callbacks:
     def new_point(self):
         self._cache.clear()
 
-    def _pair(self, key, fn, x):
+    def _pair(self, key, x):
         if key not in self._cache:
-            self._cache[key] = self._timed(fn, x, self.p)
+            self._cache[key] = self._timed(self._pairs[key], x, self.p)
         return self._cache[key]
 
     def functions(self) -> dict:
         return {
-            "f": lambda x: float(self._pair("fg", self._fg, x)[0]),
-            "g": lambda x: self._pair("fg", self._fg, x)[1],
-            "grad": lambda x: self._pair("dj", self._dj, x)[0],
-            "jac": lambda x: self._pair("dj", self._dj, x)[1],
+            "f": lambda x: float(self._pair("fg", x)[0]),
+            "g": lambda x: self._pair("fg", x)[1],
+            "grad": lambda x: self._pair("dj", x)[0],
+            "jac": lambda x: self._pair("dj", x)[1],
             "hess": lambda x, lam, obj_factor: self._timed(self._hess, x, lam, obj_factor, self.p),
             "intermediate": self.intermediate,
             "new_point": self.new_point,

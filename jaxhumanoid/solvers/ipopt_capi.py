@@ -76,6 +76,11 @@ def _view(ptr, size: int) -> np.ndarray:
     return np.ctypeslib.as_array(ptr, shape=(size,))
 
 
+def _structure(rows, cols, r: np.ndarray, c: np.ndarray) -> None:
+    np.ctypeslib.as_array(rows, shape=r.shape)[:] = r
+    np.ctypeslib.as_array(cols, shape=c.shape)[:] = c
+
+
 def add_option(handle, key: str, val) -> None:
     """One IPOPT option; raises ValueError naming it when IPOPT rejects the key or value."""
     lib = library()
@@ -133,9 +138,8 @@ def solve(n, m, xl, xu, gl, gu, jac_structure, hess_structure, funcs: dict, opti
 
     @guarded
     def eval_jac(n_, x, new_x, m_, nele, rows, cols, values, _):
-        if not values:
-            np.ctypeslib.as_array(rows, shape=(nnz_j,))[:] = jr
-            np.ctypeslib.as_array(cols, shape=(nnz_j,))[:] = jc
+        if not values:  # IPOPT asks for the pattern first
+            _structure(rows, cols, jr, jc)
         else:
             _view(values, nnz_j)[:] = funcs["jac"](point(x, new_x))
         return True
@@ -143,8 +147,7 @@ def solve(n, m, xl, xu, gl, gu, jac_structure, hess_structure, funcs: dict, opti
     @guarded
     def eval_h(n_, x, new_x, obj_factor, m_, lam, new_lam, nele, rows, cols, values, _):
         if not values:
-            np.ctypeslib.as_array(rows, shape=(nnz_h,))[:] = hr
-            np.ctypeslib.as_array(cols, shape=(nnz_h,))[:] = hc
+            _structure(rows, cols, hr, hc)
         else:
             _view(values, nnz_h)[:] = funcs["hess"](point(x, new_x), np.array(_view(lam, m)), obj_factor)
         return True
