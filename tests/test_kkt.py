@@ -123,7 +123,8 @@ def test_structurally_singular_first_block_is_eliminated_last():
     rng = np.random.default_rng(7)
     n, m, vs, cs, hr, hc, jr, jc = ocp_like_pattern(rng, S=8, nx=5, nc=4, n0=2)
     st = kkt.build_structure(n, m, vs, cs, hr, hc, jr, jc)
-    assert np.all(st.var_pos[vs == 0] // st.nb == st.S - 1), "stage 0 must be the last pivot block"
+    # stage 0 is block 0, the border of the arrowhead order 1, ..., S-1, 0: eliminated last
+    assert np.all(st.var_pos[vs == 0] // st.nb == 0), "stage 0 must be the border (last pivot) block"
     hv = rng.uniform(0.5, 2.0, hr.size)
     jv = rng.standard_normal(jr.size)
     dc = np.zeros(m)                                           # equality rows, no regularisation

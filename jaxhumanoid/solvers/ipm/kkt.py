@@ -102,9 +102,14 @@ def _compress_stages(var_stage, con_stage):
     return vs, cs, max(len(ids), 1)
 
 
-def build_structure(n, m, var_stage, con_stage, hess_rows, hess_cols, jac_rows, jac_cols) -> KKTStructure:
+def build_structure(n, m, var_stage, con_stage, hess_rows, hess_cols, jac_rows, jac_cols,
+                    order: str = "auto") -> KKTStructure:
     """Precompute (numpy, once per NLP) the block layout and all scatter targets.
 
+    ``order``: which end of the stage chain becomes block 0, the border block that is eliminated
+    last (see ``factor``). "auto" puts there the end stage whose variables fall shortest of its
+    constraints (the structurally singular one of an optimal-control problem with a fixed
+    initial state); "forward" keeps stage 0 first, "backward" reverses the stages.
     Raises ValueError if an entry couples stages more than one apart (K not block-tridiagonal).
     """
     var_stage = np.asarray(var_stage, dtype=np.int64).reshape(-1)
@@ -112,14 +117,18 @@ def build_structure(n, m, var_stage, con_stage, hess_rows, hess_cols, jac_rows, 
     if var_stage.size != n or con_stage.size != m:
         raise ValueError(f"var_stage/con_stage must have sizes n={n}, m={m}, got "
                          f"{var_stage.size}, {con_stage.size}")
+    if order not in ("auto", "forward", "backward"):
+        raise ValueError(f"order must be 'auto', 'forward' or 'backward', got {order!r}")
     vs, cs, S = _compress_stages(var_stage, con_stage) if n + m else (var_stage, con_stage, 1)
     nvar = np.bincount(vs, minlength=S)
     ncon = np.bincount(cs, minlength=S)
-    # Elimination direction: a pivot block whose equality rows outnumber its variables is singular
-    # although K is not (an optimal-control problem with a fixed initial state: interval 0's rows
-    # act on stage 1's variables). Eliminating from the other end (Riccati direction) gives that
-    # block the Schur complement of its neighbour first. Start at the end with the larger surplus.
-    if nvar[-1] - ncon[-1] > nvar[0] - ncon[0]:
+    # Orientation: block 0 is eliminated last (it is the border of an arrowhead elimination
+    # order 1, 2, ..., S-1, 0), so it receives the Schur complements of all other blocks. A
+    # block whose equality rows outnumber its variables is singular on its own although K is not
+    # (a fixed initial state: interval 0's rows act on stage 1's variables); it must be that
+    # border. On the humanoid NLPs this (forward) direction also keeps nearly every other pivot
+    # block quasi-definite, unlike the reverse (Riccati) direction, see ``factor``.
+    if order == "backward" or (order == "auto" and nvar[-1] - ncon[-1] < nvar[0] - ncon[0]):
         vs, cs = S - 1 - vs, S - 1 - cs
         nvar, ncon = nvar[::-1], ncon[::-1]
     # local layout of a block: [variables, primal padding | constraints, dual padding], split at
@@ -225,12 +234,21 @@ def add_diagonal(st: KKTStructure, A, diag_x, diag_c):
 
 
 class Factor(NamedTuple):
-    Dinv: jax.Array     # (S, nb, nb) inverses of the pivot blocks D_k of the equilibrated K
-    L: jax.Array        # (S, r, nb) rows b_rows of L_{k+1,k} = B_k D_k^{-1} (the others are zero)
+    Dinv: jax.Array     # (S, nb, nb) inverses of the pivot blocks D_k of the equilibrated K;
+                        # [0] is the border block's (eliminated last, see ``factor``)
+    L: jax.Array        # (S, r, nb) rows b_rows of L_{k+1,k} = B_k D_k^{-1} (the others are
+                        # zero); [0] is zero (block 0 is the border, see ``factor``)
     npos: jax.Array     # inertia of K (padding removed)
     nneg: jax.Array
     nzero: jax.Array    # numerically zero (or non-finite) eigenvalues: K singular
     d: jax.Array        # (S, nb) symmetric equilibration: the factors are of diag(d) K diag(d)
+
+
+# gamma of the congruence of the quasi-definite pivot path (``_quasidefinite_block``), for
+# equilibrated blocks (entries <= 1). On T1's stage-2 KKT matrices (N = 100, scripts/bench_kkt.py)
+# 30 keeps the most blocks on the fast path (97-100 of 100; 1-96 with gamma = 0); a larger gamma
+# only costs digits (D^{-1} is formed from terms of size gamma^2).
+QD_GAMMA = 30.0
 
 
 def equilibrate(A, B, passes: int = 2):
@@ -276,7 +294,7 @@ def _pivot_block(Dk, rel_zero_tol):
     w_safe = jnp.where(zero, jnp.where(w < 0, -tol, tol), w)
     Qr = Q * r[:, None]
     Dinv = (Qr / w_safe) @ Qr.T
-    return Dinv, nneg, nzero
+    return Dinv, nneg.astype(jnp.int64), nzero.astype(jnp.int64)
 
 
 def _tri_inv(L):
@@ -285,96 +303,283 @@ def _tri_inv(L):
     return solve_triangular(L, jnp.eye(L.shape[-1], dtype=L.dtype), lower=True)
 
 
-def _quasidefinite_block(Dk, nbx):
-    """Fast path: D_k = [[P, Q^T], [Q, R]] (primal part first) with P > 0 and -(R - Q P^{-1} Q^T) > 0
-    checked by two Cholesky factorisations; then inertia(D_k) = (nbx, nb - nbx, 0) exactly
-    (Sylvester) and D_k^{-1} follows from the block formula. Returns (Dinv, ok)."""
+def _quasidefinite_block(Dk, nbx, gamma=QD_GAMMA):
+    """Fast path with exact inertia: D_k = [[P, Q^T], [Q, R]] (primal part first, P nbx x nbx).
+
+    The congruence T = [[I, 0], [G Q, I]] with G = gamma (I - gamma R)^{-1} (T unit triangular,
+    so inertia(T^T D_k T) = inertia(D_k), Sylvester) gives
+
+        T^T D_k T = [[P~, Q~^T], [Q~, R]],   P~ = P + Q^T (2G + G R G) Q,   Q~ = (I + R G) Q.
+
+    With M = I - gamma R: Q~ = M^{-1} Q and P~ = P + gamma (Q^T M^{-1} Q + Q~^T Q~). Three Cholesky
+    factorisations, of M, of P~ and of -(R - Q~ P~^{-1} Q~^T), all succeeding certify inertia(D_k) =
+    (nbx, nb - nbx, 0) exactly (for G = 0 this is the plain quasi-definite test). The
+    augmented-Lagrangian term gamma Q^T Q makes P~ positive definite where P is indefinite only
+    along directions the constraints pin down (the Hessian of the joint angles, which comes from
+    constraint curvature); on the dual rows of inequalities (R << 0) G tends to -R^{-1} and the
+    transformation is the Schur complement of R. Then
+
+        D_k^{-1} = T (T^T D_k T)^{-1} T^T = N1 N1^T - N2 N2^T,
+        N1 = [I; E] Lp^{-T},   N2 = ([0; I] - [I; E] P~^{-1} Q~^T) Ls^{-T},   E = G Q = gamma Q~,
+
+    (Lp, Ls the Cholesky factors of P~ and of minus the Schur complement). Returns (Dinv, ok).
+    """
     nb = Dk.shape[0]
     P = Dk[:nbx, :nbx]
-    Lp = jnp.linalg.cholesky(P)
-    Lpi = _tri_inv(Lp)
-    Pinv = Lpi.T @ Lpi
     if nbx == nb:
-        return Pinv, jnp.all(jnp.isfinite(Pinv))
+        Lpi = _tri_inv(jnp.linalg.cholesky(P))
+        Dinv = Lpi.T @ Lpi
+        return Dinv, jnp.all(jnp.isfinite(Dinv))
     Q = Dk[nbx:, :nbx]
     R = Dk[nbx:, nbx:]
-    W = Q @ Lpi.T
-    Sc = W @ W.T - R                      # minus the Schur complement
-    Ls = jnp.linalg.cholesky(0.5 * (Sc + Sc.T))
-    Lsi = _tri_inv(Ls)
-    Scinv = Lsi.T @ Lsi
-    G = Pinv @ Q.T
-    GS = G @ Scinv
-    Dinv = jnp.concatenate([jnp.concatenate([Pinv - GS @ G.T, GS], axis=1),
-                            jnp.concatenate([GS.T, -Scinv], axis=1)], axis=0)
+    nc = nb - nbx
+    eye_c = jnp.eye(nc, dtype=Dk.dtype)
+    Lmi = _tri_inv(jnp.linalg.cholesky(eye_c - gamma * R))
+    V = Lmi @ Q                                   # Q^T M^{-1} Q = V^T V
+    Qt = Lmi.T @ V                                # Q~ = M^{-1} Q
+    Pt = P + gamma * (V.T @ V + Qt.T @ Qt)
+    Lpi = _tri_inv(jnp.linalg.cholesky(0.5 * (Pt + Pt.T)))
+    W = Qt @ Lpi.T
+    Sc = W @ W.T - R                              # minus the Schur complement
+    Lsi = _tri_inv(jnp.linalg.cholesky(0.5 * (Sc + Sc.T)))
+    Gp = Lpi.T @ W.T                              # P~^{-1} Q~^T  (nbx x nc)
+    IE = jnp.concatenate([jnp.eye(nbx, dtype=Dk.dtype), gamma * Qt], axis=0)     # [I; E]
+    N1 = IE @ Lpi.T
+    N2 = (jnp.concatenate([jnp.zeros((nbx, nc), Dk.dtype), eye_c], axis=0) - IE @ Gp) @ Lsi.T
+    Dinv = N1 @ N1.T - N2 @ N2.T
     return Dinv, jnp.all(jnp.isfinite(Dinv))
 
 
-def factor(st: KKTStructure, A, B, rel_zero_tol: float | None = None, fast: bool = True) -> Factor:
-    """Block LDL^T of K by a forward ``lax.scan`` over the stages; inertia of K included.
+def _qd_diag_pre(A, nbx, gamma=QD_GAMMA):
+    """Fill-independent part of ``_qd_diag_core`` for all blocks at once (batched, outside the
+    scan): with R = diag(r) the dual part of a pivot block, M = I - gamma R is diagonal (m >= 1
+    for an IPM, R <= 0; m > 0 is its Cholesky test), Q^T (2G + G R G) Q = Q^T diag(h) Q and
+    Q~ = M^{-1} Q. Returns (P + Q^T diag(h) Q, Q~, r, m > 0)."""
+    P = A[:, :nbx, :nbx]
+    Q = A[:, nbx:, :nbx]
+    r = jnp.diagonal(A, axis1=1, axis2=2)[:, nbx:]
+    m = 1.0 - gamma * r
+    h = gamma * (1.0 / m + 1.0 / (m * m))
+    Pb = P + jnp.einsum("kci,kc,kcj->kij", Q, h, Q)
+    return Pb, Q / m[:, :, None], r, jnp.all(m > 0, axis=1)
 
-    K is first equilibrated (``equilibrate``). Each pivot block then tries the quasi-definite fast
-    path (two Choleskys); only blocks where it fails (indefinite primal part, or singular) are
-    eigen-decomposed (``lax.cond``), so the inertia is exact in both cases.
-    """
-    d = equilibrate(A, B)
-    A, B = scale_blocks(A, B, d)
+
+def _qd_diag_core(Pt, Qt, r, gamma=QD_GAMMA):
+    """``_quasidefinite_block`` for a pivot block whose dual part R = diag(r) is diagonal (no fill
+    reaches the constraint rows, ``KKTStructure.b_rows`` all primal), given P~ = ``Pt`` and Q~ =
+    ``Qt`` (``_qd_diag_pre``, minus the fill on P~). With Lp Lp^T = P~, W = Q~ Lp^{-T} and
+    Ls Ls^T = W W^T - R (minus the Schur complement),
+
+        T^T D_k T = F J F^T,   F = [[Lp, 0], [W, Ls]],   J = diag(I, -I),
+        D_k^{-1} = N J N^T,    N = T F^{-T},   F^{-1} = [[Lp^{-1}, 0], [-Ls^{-1} W Lp^{-1}, Ls^{-1}]],
+
+    and T = [[I, 0], [E, I]], E = gamma Q~, adds E times the first rows of F^{-T} to the others.
+    Returns (Dinv, ok): ok iff both Cholesky factorisations succeeded (inertia (nbx, nc, 0))."""
+    nbx, nc = Pt.shape[0], Qt.shape[0]
+    Lpi = _tri_inv(jnp.linalg.cholesky(0.5 * (Pt + Pt.T)))
+    W = Qt @ Lpi.T
+    Sc = W @ W.T - jnp.diag(r)
+    Lsi = _tri_inv(jnp.linalg.cholesky(0.5 * (Sc + Sc.T)))
+    K21 = -(Lsi @ W) @ Lpi
+    Ntop = jnp.concatenate([Lpi.T, K21.T], axis=1)                                   # (nbx, nb)
+    Nbot = (gamma * Qt) @ Ntop + jnp.concatenate([jnp.zeros((nc, nbx), Pt.dtype), Lsi.T], axis=1)
+    N = jnp.concatenate([Ntop, Nbot], axis=0)
+    N1, N2 = N[:, :nbx], N[:, nbx:]
+    Dinv = N1 @ N1.T - N2 @ N2.T
+    return Dinv, jnp.all(jnp.isfinite(Dinv))
+
+
+def _pivot(Dk, nbx, fast, rel_zero_tol, qd=None):
+    """(Dinv, nneg, nzero, path) of one pivot block: path 0 quasi-definite, 2 eigendecomposition.
+    ``qd``: (Dinv, ok) of the fast path if computed by the caller (``_qd_diag_core``)."""
+    nb = Dk.shape[0]
+    if fast and nbx > 0:
+        Dinv_f, ok = _quasidefinite_block(Dk, nbx) if qd is None else qd
+        return lax.cond(
+            ok, lambda D_: (Dinv_f, jnp.asarray(nb - nbx, jnp.int64), jnp.zeros((), jnp.int64), jnp.zeros((), jnp.int32)),
+            lambda D_: _pivot_block(D_, rel_zero_tol) + (jnp.full((), 2, jnp.int32),), Dk)
+    return _pivot_block(Dk, rel_zero_tol) + (jnp.full((), 2, jnp.int32),)
+
+
+def _sel(ix):
+    """A static slice for a contiguous index range (XLA:CPU: slices instead of gathers and
+    scatters inside the scans), else the index array."""
+    ix = np.asarray(ix)
+    if ix.size and np.array_equal(ix, np.arange(ix[0], ix[0] + ix.size)):
+        return slice(int(ix[0]), int(ix[0]) + int(ix.size))
+    return ix
+
+
+def _sel2(a, b):
+    sa, sb = _sel(a), _sel(b)
+    if isinstance(sa, slice) and isinstance(sb, slice):
+        return sa, sb
+    return np.ix_(np.asarray(a), np.asarray(b))
+
+
+def _equilibrate_compact(st: KKTStructure, A, B, passes: int = 2):
+    """``equilibrate`` + ``scale_blocks`` with fewer passes over the data (XLA:CPU: every
+    elementwise pass over the (S, nb, nb) blocks costs ~0.2 ms): |A| is formed once, and of B
+    only the structurally nonzero part B[:, b_rows, b_cols] (S, r, c) is touched.
+    Returns (d, scaled A, scaled compact B)."""
+    rb, cb = _sel(st.b_rows), _sel(st.b_cols)
+    S_, nb = A.shape[0], A.shape[1]
+    aA = jnp.abs(A)
+    Bc = B[:, rb][:, :, cb]
+    aB = jnp.abs(Bc)
+    d = jnp.ones((S_, nb), A.dtype)
+    for i in range(passes):
+        if i == 0:
+            ra, br, bc = jnp.max(aA, axis=2), jnp.max(aB, axis=2), jnp.max(aB, axis=1)
+        else:                               # max_j |d_i K_ij d_j| = d_i max_j |K_ij| d_j
+            dn = jnp.concatenate([d[1:], jnp.ones_like(d[:1])], axis=0)
+            ra = d * jnp.max(aA * d[:, None, :], axis=2)
+            br = dn[:, rb] * jnp.max(aB * d[:, None, cb], axis=2)      # rows of block k+1
+            bc = d[:, cb] * jnp.max(aB * dn[:, rb, None], axis=1)      # columns of block k
+        rmax = ra.at[:, cb].max(bc)
+        rmax = rmax.at[1:, rb].max(br[:-1])
+        d = d / jnp.sqrt(jnp.where((rmax > 0) & jnp.isfinite(rmax), rmax, 1.0))
+    dn = jnp.concatenate([d[1:], jnp.ones_like(d[:1])], axis=0)
+    return d, A * (d[:, :, None] * d[:, None, :]), Bc * (dn[:, rb, None] * d[:, None, cb])
+
+
+def _matvec(st: KKTStructure, A, B, u):
+    """``matvec`` using only the structurally nonzero part of B."""
+    rb, cb = _sel(st.b_rows), _sel(st.b_cols)
+    Bc = B[:-1, rb][:, :, cb]
+    y = jnp.einsum("kij,kj->ki", A, u)
+    y = y.at[1:, rb].add(jnp.einsum("kij,kj->ki", Bc, u[:-1, cb]))
+    return y.at[:-1, cb].add(jnp.einsum("kji,kj->ki", Bc, u[1:, rb]))
+
+
+def _factor(st: KKTStructure, A, B, rel_zero_tol, fast):
+    d, A, Bs = _equilibrate_compact(st, A, B)     # Bs: (S, r, c) nonzero part of the B_k
     if rel_zero_tol is None:
         rel_zero_tol = 10.0 * st.nb * float(np.finfo(np.float64).eps)
-    nbx, nb = st.nbx, st.nb
+    nbx, nb, S = st.nbx, st.nb, st.S
+    rb, cb = _sel(st.b_rows), _sel(st.b_cols)
+    rr = _sel2(st.b_rows, st.b_rows)
 
-    def slow(Dk):
-        return _pivot_block(Dk, rel_zero_tol)
+    # the fill of blocks 1.. reaches only rows b_rows; if those are all primal, the dual part of
+    # their pivot blocks is the diagonal -D_c (the (2,2) block of K is diagonal) and the fast
+    # path's fill-independent work is done for all blocks at once, outside the scan
+    diag_r = fast and 0 < nbx < nb and bool(np.all(st.b_rows < nbx))
+    pre = _qd_diag_pre(A, nbx) if diag_r else (A[:, :1, :1], A[:, :1, :1], A[:, 0], A[:, 0, 0] > 0)
 
-    rb, cb = st.b_rows, st.b_cols
-    rr, cc = np.ix_(rb, rb), np.ix_(cb, cb)
-
-    def body(C, ab):
-        a, b = ab
+    def body(carry, inp):
+        C, X = carry                              # fill on block k's rows b_rows; border coupling
+        a, bs, pb, qt, rr_, mok = inp
         Dk = a.at[rr].add(-C)
         Dk = 0.5 * (Dk + Dk.T)
-        if fast and nbx > 0:
-            Dinv_f, ok = _quasidefinite_block(Dk, nbx)
-            Dinv, nneg, nzero = lax.cond(
-                ok, lambda D_: (Dinv_f, jnp.asarray(nb - nbx, jnp.int64), jnp.zeros((), jnp.int64)),
-                lambda D_: tuple(v.astype(jnp.int64) if v.ndim == 0 else v for v in slow(D_)), Dk)
-        else:
-            Dinv, nneg, nzero = slow(Dk)
-        bs = b[np.ix_(rb, cb)]                 # the nonzero part of B_k
-        Cn = bs @ Dinv[cc] @ bs.T              # B_k D_k^{-1} B_k^T on rows/columns b_rows
-        return 0.5 * (Cn + Cn.T), (Dinv, bs @ Dinv[cb], nneg, nzero)
+        qd = None
+        if diag_r:
+            Dq, okq = _qd_diag_core(pb.at[rr].add(-C), qt, rr_)
+            qd = (Dq, okq & mok)
+        Dinv, nneg, nzero, path = _pivot(Dk, nbx, fast, rel_zero_tol, qd)
+        Lk = bs @ Dinv[cb]                        # B_k D_k^{-1} on rows b_rows (r x nb)
+        Cn = Lk[:, cb] @ bs.T
+        Xn = -X @ Lk[:, rb].T                     # (border, block k+1) fill: -X_k D_k^{-1} B_k^T
+        return (0.5 * (Cn + Cn.T), Xn), (Dinv, Lk, X, nneg, nzero, path)
 
-    C0 = jnp.zeros((rb.size, rb.size), dtype=A.dtype)
-    _, (Dinv, L, nneg, nzero) = lax.scan(body, C0, (A, B))
-    nneg = jnp.sum(nneg)
-    nzero = jnp.sum(nzero)
-    npos = st.S * st.nb - nneg - nzero - st.n_pad_pos
-    return Factor(Dinv, L, npos, nneg - st.n_pad_neg, nzero, d)
+    if S > 1:
+        X1 = jnp.zeros((st.b_rows.size, nb), A.dtype).at[:, cb].set(Bs[0]).T   # B_0^T: block 0 is the border
+        C0 = jnp.zeros((st.b_rows.size, st.b_rows.size), dtype=A.dtype)
+        _, (Dinv, Lk, X, nneg, nzero, path) = lax.scan(body, (C0, X1), (A[1:], Bs[1:]) + tuple(v[1:] for v in pre))
+        Xr = X                                    # (S-1, nb, r)
+        Z = jnp.einsum("kar,krs,kbs->ab", Xr, Dinv[:, rb][:, :, rb], Xr)
+        D0 = A[0] - Z
+    else:
+        D0 = A[0]
+    D0 = 0.5 * (D0 + D0.T)
+    Dinv0, nneg0, nzero0, path0 = _pivot(D0, nbx, fast, rel_zero_tol)
+    if S > 1:
+        Dinv = jnp.concatenate([Dinv0[None], Dinv], axis=0)
+        L = jnp.concatenate([jnp.zeros((1, st.b_rows.size, nb), A.dtype), Lk], axis=0)
+        nneg_t = nneg0 + jnp.sum(nneg)
+        nzero_t = nzero0 + jnp.sum(nzero)
+        paths = jnp.concatenate([path0[None], path])
+    else:
+        Dinv, L = Dinv0[None], jnp.zeros((1, st.b_rows.size, nb), A.dtype)
+        nneg_t, nzero_t, paths = nneg0, nzero0, path0[None]
+    npos = st.S * st.nb - nneg_t - nzero_t - st.n_pad_pos
+    return Factor(Dinv, L, npos, nneg_t - st.n_pad_neg, nzero_t, d), paths
 
 
-def _solve_vec(st: KKTStructure, fac: Factor, r):
-    """Solve K u = r for a stage-blocked vector r (S, nb) with the block LDL^T of diag(d) K diag(d)."""
-    L = fac.L
+def factor(st: KKTStructure, A, B, rel_zero_tol: float | None = None, fast: bool = True) -> Factor:
+    """Block LDL^T of K with the exact inertia of K.
+
+    K is first equilibrated (``equilibrate``). The blocks are eliminated in the order 1, 2, ...,
+    S-1 (``lax.scan``) and then 0: block 0 is a border (arrowhead elimination), coupled to the
+    others only through the fill X_k, on the rows ``b_rows`` of block k, that block 0 receives
+    as they are eliminated. With D_k = A_k - B_{k-1} D_{k-1}^{-1} B_{k-1}^T (k >= 1),
+
+        X_1 = B_0^T,   X_{k+1} = -X_k D_k^{-1} B_k^T,   D_0 = A_0 - sum_k X_k D_k^{-1} X_k^T,
+
+    and inertia(K) = sum_k inertia(D_k) (Sylvester). Each pivot block is first tried on the
+    quasi-definite fast path (``_quasidefinite_block``: Cholesky factorisations only); blocks
+    where it fails are eigen-decomposed (``lax.cond``), so the inertia is exact in both cases.
+    ``fast=False`` eigen-decomposes every block.
+    """
+    return _factor(st, A, B, rel_zero_tol, fast)[0]
+
+
+def pivot_paths(st: KKTStructure, A, B, fast: bool = True):
+    """(S,) how each pivot block was factored: 0 quasi-definite (Cholesky), 2 eigendecomposition.
+    Entry 0 is the border block. For diagnostics and benchmarks."""
+    return _factor(st, A, B, None, fast)[1]
+
+
+def _solve_vec(st: KKTStructure, fac: Factor, X1t, r):
+    """Solve K u = r for a stage-blocked vector r (S, nb) with the factors of diag(d) K diag(d).
+
+    Elimination order 1, ..., S-1, 0 (``factor``). The border couplings X_k = X_1 (-T_1) ...
+    (-T_{k-1}), T_k = (L_{k+1,k}[:, b_rows])^T (r x r), are not stored: the sums they enter are
+    evaluated by Horner-type recursions on r-vectors. ``X1t`` = X_1^T = equilibrated
+    B_0[b_rows] (``_border_coupling``)."""
+    rb = _sel(st.b_rows)
     r = fac.d * r
+    Dinv, L = fac.Dinv, fac.L
+    if st.S == 1:
+        return fac.d * (r @ Dinv[0].T)
 
-    rb = st.b_rows
-
-    def fwd(zprev, inp):
+    def fwd(zprev, inp):                  # z_k = r_k - L_{k,k-1} z_{k-1}
         rk, Lprev = inp
         zk = rk.at[rb].add(-(Lprev @ zprev))
         return zk, zk
 
-    Lprev = jnp.concatenate([jnp.zeros_like(L[:1]), L[:-1]], axis=0)
-    _, z = lax.scan(fwd, jnp.zeros_like(r[0]), (r, Lprev))
-    w = jnp.einsum("kij,kj->ki", fac.Dinv, z)
+    _, z = lax.scan(fwd, jnp.zeros_like(r[0]), (r[1:], L[:-1]))
+    w = jnp.einsum("kij,kj->ki", Dinv[1:], z)
+    T = jnp.swapaxes(L[1:, :, rb], 1, 2)  # (S-1, r, r)
 
-    def bwd(unext, inp):
+    def horner(h, inp):                   # h_k = w_k[rb] - T_k h_{k+1};  sum_k X_k w_k[rb] = X_1 h_1
+        wk, Tk = inp
+        hk = wk[rb] - Tk @ h
+        return hk, None
+
+    h1, _ = lax.scan(horner, jnp.zeros((st.b_rows.size,), r.dtype), (w, T), reverse=True)
+    u0 = Dinv[0] @ (r[0] - X1t.T @ h1)
+
+    def gfwd(g, Tk):                      # g_k = X_k^T u_0:  g_{k+1} = -T_k^T g_k
+        return -(Tk.T @ g), g
+
+    _, g = lax.scan(gfwd, X1t @ u0, T)
+    wc = w - jnp.einsum("kir,kr->ki", Dinv[1:, :, rb], g)
+
+    def bwd(unext, inp):                  # u_k = w_k - D_k^{-1} X_k^T u_0 - L_{k+1,k}^T u_{k+1}
         wk, Lk = inp
         uk = wk - Lk.T @ unext[rb]
         return uk, uk
 
-    _, u = lax.scan(bwd, jnp.zeros_like(r[0]), (w, L), reverse=True)
-    return fac.d * u
+    _, u = lax.scan(bwd, jnp.zeros_like(r[0]), (wc, L[1:]), reverse=True)
+    return fac.d * jnp.concatenate([u0[None], u], axis=0)
+
+
+def _border_coupling(st: KKTStructure, fac: Factor, B):
+    """X_1^T = rows b_rows of the equilibrated B_0 (r x nb)."""
+    if st.S == 1:
+        return jnp.zeros((st.b_rows.size, st.nb), B.dtype)
+    rb = _sel(st.b_rows)
+    return B[0][rb] * fac.d[1][rb][:, None] * fac.d[0][None, :]
 
 
 def matvec(A, B, u):
@@ -406,6 +611,7 @@ def solve(st: KKTStructure, fac: Factor, A, B, rx, rc, min_steps: int = 1, max_s
     most ``residual_ratio_max`` (after at least ``min_steps`` and at most ``max_steps`` refinements)."""
     r = to_blocks(st, rx, rc)
     dr = jnp.max(jnp.abs(fac.d * r))
+    X1t = _border_coupling(st, fac, B)
 
     def ratio(u, res):
         return jnp.max(jnp.abs(fac.d * res)) / jnp.maximum(jnp.max(jnp.abs(u / fac.d)) + dr, 1e-300)
@@ -416,8 +622,8 @@ def solve(st: KKTStructure, fac: Factor, A, B, rx, rc, min_steps: int = 1, max_s
 
     def body(c):
         u, res, t = c
-        u = u + _solve_vec(st, fac, res)
-        return u, r - matvec(A, B, u), t + 1
+        u = u + _solve_vec(st, fac, X1t, res)
+        return u, r - _matvec(st, A, B, u), t + 1
 
     # one traced solve: the first pass (t = 0) is the plain solve, the others refine
     u, _, _ = lax.while_loop(cond, body, (jnp.zeros_like(r), r, jnp.zeros((), jnp.int32)))

@@ -1,0 +1,307 @@
+"""Benchmark: the IPM's block-tridiagonal KKT factorisation (``solvers/ipm/kkt.py``) on real
+humanoid KKT matrices.
+
+    OMP_NUM_THREADS=1 python scripts/bench_kkt.py [--repeats 20] [--out results/bench_kkt.json]
+                                                  [--data /tmp/bench_kkt_data.npz] [--no-check]
+
+The matrices are those of T1's stage-2 NLP at N = 100 (A,F+C,2S), as the IPM sees them near the
+points IPOPT passes through: the interpolated 2S warm start is solved by IPOPT with the 2S stage-2
+options, stopped after 3 and 30 iterations and run to the end; at each point the Hessian of the
+Lagrangian (IPOPT's multipliers) and the Jacobian are evaluated, and the barrier diagonals are
+formed as the IPM forms them (Sigma_x = z_l / (x - x_l) + z_u / (x_u - x), inequality rows
+-1 / Sigma_s with Sigma_s = |lambda| / slack; equality rows 0). One further matrix takes the
+final point with a synthetic log-uniform Sigma_x in 1e-8 .. 1e8. The NLP data are cached in
+``--data`` (IPOPT takes a minute), the reference inertia (dense ``numpy.linalg.eigvalsh`` of
+``kkt.dense_matrix``, ~20 s per matrix) next to it.
+
+For each matrix and shift delta_w in {0, the smallest 1e-4 * 8^j giving inertia (n, m, 0)}:
+  - time (median of ``--repeats``, jitted) of ``factor``, one plain block solve (``_solve_vec``)
+    and ``solve`` with the IPM's refinement settings (min 1, max 10 steps, ratio 1e-10),
+  - the number of pivot blocks that leave the quasi-definite fast path,
+  - the relative residual ||K u - r|| / ||r|| of the refined solve and its relative difference
+    from ``scipy.sparse.linalg.spsolve``, the refinement steps taken,
+  - inertia reported by ``factor`` vs the dense eigenvalues.
+Set OMP_NUM_THREADS=1 when comparing with other runs; report ``uptime`` next to the numbers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import os
+import pathlib
+import subprocess
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+import jaxhumanoid  # noqa: F401  (float64)
+from jaxhumanoid.solvers.ipm import kkt
+
+from _bench import time_fn, write
+
+
+# ------------------------------------------------------------------------------------ data
+def make_data(path: str) -> dict:
+    """Hessian/Jacobian values and barrier diagonals at IPOPT iterates of T1's stage 2 (cached)."""
+    p = pathlib.Path(path)
+    if p.exists():
+        z = np.load(p, allow_pickle=False)
+        return {k: z[k] for k in z.files}
+    from bench_ipm import stage1_problem
+    from jaxhumanoid.ocp import transcription as tr
+    from jaxhumanoid.solvers.ipopt import solve_ipopt
+    from jaxhumanoid.strategy import solve as strat
+
+    first, prob = stage1_problem("T1")
+    nlp, b = prob.nlp, prob.bounds
+    r1 = solve_ipopt(first.nlp, first.p, first.bounds, options=strat.STAGE1_DEFAULTS)
+    Zf = strat.interpolate_full(first.full(r1.x), float(prob.p.T), prob.layout)
+    x0 = np.clip(np.asarray(tr.free_from_full(prob.layout, Zf)), b.xl, b.xu)
+    out = {}
+    for label, iters in (("it3", 3), ("it30", 30), ("final", 3000)):
+        r = solve_ipopt(nlp, prob.p, b, x0=x0, options={**strat.STAGE2_DEFAULTS, "max_iter": iters})
+        x, lam = np.asarray(r.x), np.asarray(r.lam_g)
+        hv = np.asarray(nlp.hess_values(jnp.asarray(x), jnp.asarray(lam), 1.0, prob.p))
+        jv = np.asarray(nlp.jac_values(jnp.asarray(x), prob.p))
+        g = np.asarray(nlp.g(jnp.asarray(x), prob.p))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            sx = np.where(np.isfinite(b.xl), r.z_l / np.maximum(x - b.xl, 1e-20), 0.0) \
+                + np.where(np.isfinite(b.xu), r.z_u / np.maximum(b.xu - x, 1e-20), 0.0)
+            ineq = b.gl < b.gu
+            s = np.clip(g, b.gl, b.gu)
+            slack = np.minimum(np.where(np.isfinite(b.gl), s - b.gl, np.inf), np.where(np.isfinite(b.gu), b.gu - s, np.inf))
+            sig_s = np.abs(lam) / np.maximum(slack, 1e-20)
+            dc = np.where(ineq, -1.0 / np.maximum(sig_s, 1e-20), 0.0)
+        out[f"{label}_hess"], out[f"{label}_jac"] = hv, jv
+        out[f"{label}_dx"], out[f"{label}_dc"] = sx, dc
+        out[f"{label}_iters"] = np.asarray(r.iterations)
+        print(f"  {label}: IPOPT {r.iterations} iterations, {r.status}; Sigma_x in "
+              f"[{sx[sx > 0].min():.1e}, {sx.max():.1e}], -D_c in [{dc[dc < 0].min():.1e}, {dc[dc < 0].max():.1e}]")
+    rng = np.random.default_rng(0)
+    bounded = np.isfinite(b.xl) | np.isfinite(b.xu)
+    out["synth_hess"], out["synth_jac"] = out["final_hess"], out["final_jac"]
+    out["synth_dx"] = np.where(bounded, 10.0 ** rng.uniform(-8, 8, nlp.n), 0.0)
+    out["synth_dc"] = np.where(b.gl < b.gu, -(10.0 ** rng.uniform(-8, 8, nlp.m)), 0.0)
+    out["synth_iters"] = out["final_iters"]
+    for k, v in dict(n=nlp.n, m=nlp.m, var_stage=nlp.var_stage, con_stage=nlp.con_stage,
+                     hess_rows=nlp.hess_rows, hess_cols=nlp.hess_cols, jac_rows=nlp.jac_rows,
+                     jac_cols=nlp.jac_cols).items():
+        out[k] = np.asarray(v)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    np.savez(p, **out)
+    return out
+
+
+def sparse_kkt(D, hv, jv, dx, dc):
+    n, m = int(D["n"]), int(D["m"])
+    hr, hc, jr, jc = D["hess_rows"], D["hess_cols"], D["jac_rows"], D["jac_cols"]
+    W = sp.coo_matrix((hv, (hr, hc)), shape=(n, n)).tocsr()
+    W = W + sp.triu(W.T, k=1) + sp.diags(dx)
+    J = sp.coo_matrix((jv, (jr, jc)), shape=(m, n)).tocsr()
+    return sp.bmat([[W, J.T], [J, sp.diags(dc)]]).tocsc()
+
+
+def ruiz(K, passes: int = 30):
+    """Symmetric Ruiz scaling s of a sparse symmetric K (numpy; independent of kkt.equilibrate):
+    S K S has rows of unit infinity norm. A diagonal congruence: inertia unchanged."""
+    K = sp.csr_matrix(K)
+    s = np.ones(K.shape[0])
+    for _ in range(passes):
+        Ks = sp.diags(s) @ K @ sp.diags(s)
+        rmax = np.asarray(abs(Ks).max(axis=1).todense()).ravel()
+        s = s / np.sqrt(np.where(rmax > 0, rmax, 1.0))
+    return s
+
+
+def dense_inertia(Ks, cache_dir: pathlib.Path):
+    """(npos, nneg, nzero, min |eig|) of the equilibrated K from dense eigvalsh, cached by hash;
+    |eig| <= n eps max|eig| counts as zero."""
+    Kd = Ks.toarray()
+    key = hashlib.sha1(Kd.tobytes()).hexdigest()[:16]
+    f = cache_dir / f"eig_{key}.npy"
+    if f.exists():
+        ev = np.load(f)
+    else:
+        ev = np.linalg.eigvalsh(Kd)
+        np.save(f, ev)
+    tol = ev.size * np.finfo(float).eps * np.max(np.abs(ev))
+    npos, nneg = int(np.sum(ev > tol)), int(np.sum(ev < -tol))
+    return npos, nneg, int(ev.size - npos - nneg), float(np.min(np.abs(ev)))
+
+
+def backward_error(Ks, s, u, r):
+    """Normwise backward error of u for K u = r, measured in the equilibrated system S K S."""
+    v = u / s
+    res = Ks @ v - s * r
+    knorm = abs(Ks).sum(axis=1).max()
+    return float(np.max(np.abs(res)) / (knorm * np.max(np.abs(v)) + np.max(np.abs(s * r))))
+
+
+def slow_blocks(st, A, B):
+    """How many pivot blocks fail the quasi-definite fast path (count taken by ``factor``)."""
+    fac = kkt.factor(st, A, B)
+    n_slow = getattr(fac, "n_slow", None)
+    return None if n_slow is None else int(n_slow)
+
+
+def baseline_slow_blocks(st, A, B):
+    """Pivot blocks that fail the original quasi-definite test (Cholesky of P and of minus the
+    Schur complement), simulated in numpy on the exact D_k sequence: for versions of kkt.py
+    without ``pivot_paths``."""
+    d = kkt.equilibrate(A, B)
+    As, Bs = (np.asarray(v) for v in kkt.scale_blocks(A, B, d))
+    rb, cb, nbx = st.b_rows, st.b_cols, st.nbx
+    C = np.zeros((rb.size, rb.size))
+    slow = 0
+    for k in range(st.S):
+        Dk = As[k].copy()
+        Dk[np.ix_(rb, rb)] -= C
+        Dk = 0.5 * (Dk + Dk.T)
+        try:
+            Lp = np.linalg.cholesky(Dk[:nbx, :nbx])
+            W = np.linalg.solve(Lp, Dk[:nbx, nbx:])
+            np.linalg.cholesky(W.T @ W - Dk[nbx:, nbx:])
+        except np.linalg.LinAlgError:
+            slow += 1
+        Dinv = np.linalg.pinv(Dk, hermitian=True)
+        bs = Bs[k][np.ix_(rb, cb)]
+        C = bs @ Dinv[np.ix_(cb, cb)] @ bs.T
+    return slow
+
+
+def count_slow(st, A, B):
+    if hasattr(kkt, "pivot_paths"):
+        paths = np.asarray(kkt.pivot_paths(st, A, B))
+        return {"slow_blocks": int(np.sum(paths == 2)), "partial_blocks": int(np.sum(paths == 1))}
+    return {"slow_blocks": baseline_slow_blocks(st, A, B)}
+
+
+def find_shift(st, A, B):
+    """IPOPT's inertia correction on the ``factor`` inertia: delta_c = 1e-9 if K is singular, then
+    the smallest delta_w in {0, 1e-4 * 8^j} giving inertia (n, m, 0); (None, dc) if none <= 1e4."""
+    fac = kkt.factor(st, A, B)
+    dc = 1e-9 if int(fac.nzero) > 0 else 0.0
+    for j in range(-1, 14):
+        dw = 0.0 if j < 0 else 1e-4 * 8.0 ** j
+        A2 = kkt.add_diagonal(st, A, jnp.full(st.n, dw), jnp.full(st.m, -dc))
+        if bool(kkt.inertia_ok(st, kkt.factor(st, A2, B))):
+            return dw, dc
+    return None, dc
+
+
+def run_case(st, D, label, dw, dcr, repeats, check, cache_dir):
+    hv, jv = D[f"{label}_hess"], D[f"{label}_jac"]
+    dx, dc = D[f"{label}_dx"] + dw, D[f"{label}_dc"] - dcr
+    A, B = kkt.assemble(st, jnp.asarray(hv), jnp.asarray(jv), jnp.asarray(dx), jnp.asarray(dc))
+    rng = np.random.default_rng(1)
+    rx, rc = jnp.asarray(rng.standard_normal(st.n)), jnp.asarray(rng.standard_normal(st.m))
+    f_factor = jax.jit(lambda A, B: kkt.factor(st, A, B))
+    fac = f_factor(A, B)
+    r_blk = kkt.to_blocks(st, rx, rc)
+    f_plain = jax.jit(lambda fac, B, r: _plain_solve(st, fac, B, r))
+    f_solve = jax.jit(lambda fac, A, B, rx, rc: kkt.solve(st, fac, A, B, rx, rc, 1, 10, 1e-10))
+    # refinement steps taken: re-run the loop's own rule
+    f_steps = jax.jit(lambda fac, A, B, rx, rc: _refinement_steps(st, fac, A, B, rx, rc))
+    out = {"label": label, "delta_w": dw, "delta_c": dcr}
+    out["factor"] = time_fn(f_factor, A, B, repeats=repeats)
+    out["plain_solve"] = time_fn(f_plain, fac, B, r_blk, repeats=repeats)
+    out["solve_refined"] = time_fn(f_solve, fac, A, B, rx, rc, repeats=repeats)
+    out["refinement_steps"] = int(f_steps(fac, A, B, rx, rc))
+    out.update(count_slow(st, A, B))
+    ux, uc = f_solve(fac, A, B, rx, rc)
+    u = np.concatenate([np.asarray(ux), np.asarray(uc)])
+    r = np.concatenate([np.asarray(rx), np.asarray(rc)])
+    K = sparse_kkt(D, hv, jv, dx, dc)
+    s = ruiz(K)
+    Ks = (sp.diags(s) @ K @ sp.diags(s)).tocsc()
+    out["backward_error"] = backward_error(Ks, s, u, r)
+    out["inertia"] = [int(fac.npos), int(fac.nneg), int(fac.nzero)]
+    out["inertia_ok"] = bool(kkt.inertia_ok(st, fac))
+    if check:
+        ref = s * spla.spsolve(Ks, s * r)
+        out["spsolve_backward_error"] = backward_error(Ks, s, ref, r)
+        out["rel_diff_spsolve"] = float(np.linalg.norm((u - ref) / s) / np.linalg.norm(ref / s))
+        npos, nneg, nzero, minabs = dense_inertia(Ks, cache_dir)
+        out["inertia_eigvalsh"] = [npos, nneg, nzero]
+        out["min_abs_eig_equilibrated"] = minabs
+        out["inertia_match"] = out["inertia"] == out["inertia_eigvalsh"]
+    return out
+
+
+def _plain_solve(st, fac, B, r):
+    """One pass of the block solve (no refinement), for both versions of ``kkt._solve_vec``."""
+    if hasattr(kkt, "_border_coupling"):
+        return kkt._solve_vec(st, fac, kkt._border_coupling(st, fac, B), r)
+    return kkt._solve_vec(st, fac, r)
+
+
+def _refinement_steps(st, fac, A, B, rx, rc, min_steps=1, max_steps=10, ratio_max=1e-10):
+    """The number of refinement steps ``solve`` takes (same rule, counted)."""
+    r = kkt.to_blocks(st, rx, rc)
+    dr = jnp.max(jnp.abs(fac.d * r))
+    u = jnp.zeros_like(r)
+    res = r
+    steps = jnp.zeros((), jnp.int32)
+    done = jnp.zeros((), bool)
+    for t in range(max_steps + 1):
+        ratio = jnp.max(jnp.abs(fac.d * res)) / jnp.maximum(jnp.max(jnp.abs(u / fac.d)) + dr, 1e-300)
+        go = (~done) & ((t <= min_steps) | (ratio > ratio_max))
+        done = ~go
+        u_new = u + _plain_solve(st, fac, B, res)
+        u = jnp.where(go, u_new, u)
+        res = jnp.where(go, r - kkt.matvec(A, B, u), res)
+        steps = steps + go.astype(jnp.int32)
+    return steps - 1          # the first pass is the plain solve
+
+
+def uptime() -> str:
+    try:
+        return subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
+    except OSError:
+        return ""
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--repeats", type=int, default=20)
+    ap.add_argument("--out", default="results/bench_kkt.json")
+    ap.add_argument("--data", default="/tmp/bench_kkt_data.npz")
+    ap.add_argument("--labels", nargs="*", default=["it3", "it30", "final", "synth"])
+    ap.add_argument("--no-check", action="store_true", help="skip the spsolve and eigvalsh references")
+    args = ap.parse_args()
+    D = make_data(args.data)
+    cache_dir = pathlib.Path(args.data).with_suffix(".eig")
+    cache_dir.mkdir(exist_ok=True)
+    st = kkt.build_structure(int(D["n"]), int(D["m"]), D["var_stage"], D["con_stage"], D["hess_rows"],
+                             D["hess_cols"], D["jac_rows"], D["jac_cols"])
+    load_before = uptime()
+    print(f"n={st.n} m={st.m} S={st.S} nb={st.nb} nbx={st.nbx}; {load_before}")
+    rows = []
+    for label in args.labels:
+        hv, jv, dx, dc = (jnp.asarray(D[f"{label}_{k}"]) for k in ("hess", "jac", "dx", "dc"))
+        A, B = kkt.assemble(st, hv, jv, dx, dc)
+        dw, dcr = find_shift(st, A, B)
+        cases = [(0.0, 0.0)] + ([(0.0, dcr)] if dcr else []) + ([(dw, dcr)] if dw else [])
+        for shift, dcs in cases:
+            rows.append(run_case(st, D, label, shift, dcs, args.repeats, not args.no_check, cache_dir))
+            r = rows[-1]
+            print(f"{label:6s} dw={shift:7.1e} dc={dcs:5.0e} factor {r['factor']['median_ms']:6.2f} ms (cpu {r['factor']['cpu_median_ms']:6.2f})"
+                  f"  plain {r['plain_solve']['median_ms']:5.2f}  refined {r['solve_refined']['median_ms']:6.2f} ms"
+                  f" ({r['refinement_steps']:2d} st)  slow {r['slow_blocks']:3d}/{st.S}"
+                  f"  berr {r['backward_error']:.0e}"
+                  + (f" (spsolve {r['spsolve_backward_error']:.0e}, diff {r['rel_diff_spsolve']:.0e})  inertia {tuple(r['inertia'])}"
+                     f" eig {tuple(r['inertia_eigvalsh'])} {'OK' if r['inertia_match'] else 'MISMATCH'}"
+                     if 'inertia_eigvalsh' in r else f"  inertia {tuple(r['inertia'])}"), flush=True)
+    load_after = uptime()
+    print(load_after)
+    write({"n": st.n, "m": st.m, "S": st.S, "nb": st.nb, "nbx": st.nbx,
+           "omp_num_threads": os.environ.get("OMP_NUM_THREADS"),
+           "uptime_before": load_before, "uptime_after": load_after, "cases": rows}, args.out)
+
+
+if __name__ == "__main__":
+    main()
