@@ -65,7 +65,9 @@ def test_block_tridiagonal_solve_and_inertia(S, nx, nc, shift):
     ev = np.linalg.eigvalsh(K.toarray())
     rx, rc = rng.standard_normal(n), rng.standard_normal(m)
     ref = spla.spsolve(K, np.concatenate([rx, rc]))
-    for fast in (True, False):      # Cholesky fast path with eigh fallback / eigh only
+    # Cholesky fast path with eigh fallback / eigh only (the latter where W is indefinite; each
+    # variant costs a compilation)
+    for fast in (True, False) if shift == 0.0 else (True,):
         fac = kkt.factor(st, A, B, fast=fast)
         assert int(fac.npos) == int(np.sum(ev > 0))
         assert int(fac.nneg) == int(np.sum(ev < 0))
@@ -138,3 +140,86 @@ def test_structurally_singular_first_block_is_eliminated_last():
     ux, uc = kkt.solve(st, fac, A, B, jnp.asarray(r[:n]), jnp.asarray(r[n:]))
     np.testing.assert_allclose(np.concatenate([ux, uc]), spla.spsolve(K, r), rtol=1e-8, atol=1e-8)
 
+
+
+def double_integrator_pattern(S, nq, nu, h=0.1):
+    """A transcribed OCP: stage k holds (q_k, v_k, u_k), stage 0 only u_0 (fixed initial state);
+    the 2 nq equality rows of interval k are q_{k+1} - q_k - h v_{k+1} and v_{k+1} - v_k - h u_k
+    (plus a coupling of v_{k+1} to q_{k+1}, a linearised force). Interval 0's rows outnumber
+    stage 0's variables, so stage 0 must be the border block."""
+    idx, var_stage = [], []
+    for k in range(S):
+        names = ([] if k == 0 else [("q", i) for i in range(nq)] + [("v", i) for i in range(nq)]) + [("u", i) for i in range(nu)]
+        idx.append({nm: len(var_stage) + j for j, nm in enumerate(names)})
+        var_stage += [k] * len(names)
+    jr, jc, jv, con_stage = [], [], [], []
+    for k in range(S - 1):
+        for i in range(nq):
+            j = len(con_stage)
+            ent = [(idx[k + 1][("q", i)], 1.0), (idx[k + 1][("v", i)], -h)] + ([(idx[k][("q", i)], -1.0)] if k else [])
+            for c, v in ent:
+                jr.append(j), jc.append(c), jv.append(v)
+            con_stage.append(k)
+            j = len(con_stage)
+            ent = [(idx[k + 1][("v", i)], 1.0), (idx[k + 1][("q", (i + 1) % nq)], 0.3 * h), (idx[k][("u", i % nu)], -h)] \
+                + ([(idx[k][("v", i)], -1.0)] if k else [])
+            for c, v in ent:
+                jr.append(j), jc.append(c), jv.append(v)
+            con_stage.append(k)
+    n = len(var_stage)
+    return n, len(con_stage), idx, np.array(var_stage), np.array(con_stage), np.array(jr), np.array(jc), np.array(jv)
+
+
+@pytest.mark.parametrize("q_curv", [-0.5, -40.0])
+def test_indefinite_state_hessian_fast_path_and_fallback(q_curv):
+    """The joint-angle Hessian of the humanoid comes only from constraint curvature and is
+    indefinite: the plain quasi-definite test fails on every pivot block, the gamma-congruence
+    fast path (Cholesky only) certifies them; with strong negative curvature K has the wrong
+    inertia and the blocks fall back to eigh. Inertia against eigvalsh, solution against spsolve."""
+    rng = np.random.default_rng(3)
+    S, nq, nu = 9, 3, 2
+    n, m, idx, vs, cs, jr, jc, jv = double_integrator_pattern(S, nq, nu)
+    hr, hc, hv = [], [], []
+    for k in range(S):
+        for nm, i in idx[k].items():
+            hr.append(i), hc.append(i)
+            hv.append({"q": q_curv, "v": 1.0, "u": 1e-2}[nm[0]] * rng.uniform(0.5, 1.5))
+        if k:                                  # q-v coupling within a stage
+            for i in range(nq):
+                r_, c_ = sorted((idx[k][("q", i)], idx[k][("v", i)]), reverse=True)
+                hr.append(r_), hc.append(c_), hv.append(0.2)
+    hr, hc, hv = np.array(hr), np.array(hc), np.array(hv)
+    st = kkt.build_structure(n, m, vs, cs, hr, hc, jr, jc)
+    assert np.all(st.var_pos[vs == 0] // st.nb == 0)          # stage 0 is the border
+    assert np.all(st.b_rows < st.nbx)                         # fill on primal rows: diagonal R path
+    dx = np.zeros(n)
+    dx[rng.choice(n, 4, replace=False)] = 10.0 ** rng.uniform(-6, 6, 4)   # a few active bounds
+    dc = np.zeros(m)
+    A, B = kkt.assemble(st, jnp.asarray(hv), jnp.asarray(jv), jnp.asarray(dx), jnp.asarray(dc))
+    K = sparse_kkt(n, m, hr, hc, hv, jr, jc, jv, dx, dc)
+    ev = np.linalg.eigvalsh(K.toarray())
+    fac = kkt.factor(st, A, B)
+    paths = np.asarray(kkt.pivot_paths(st, A, B))
+    assert (int(fac.npos), int(fac.nneg), int(fac.nzero)) == (int(np.sum(ev > 0)), int(np.sum(ev < 0)), 0)
+    correct = int(np.sum(ev > 0)) == n
+    assert bool(kkt.inertia_ok(st, fac)) == correct
+    if q_curv == -0.5:
+        assert correct and np.sum(paths[1:] == 0) >= S - 2   # (nearly) every scanned block on the fast path
+        # ... which the plain quasi-definite test (gamma = 0) would not give: P is indefinite
+        d = kkt.equilibrate(A, B)
+        As, _ = kkt.scale_blocks(A, B, d)
+        assert np.all(np.isnan(np.asarray(jnp.linalg.cholesky(As[1:, :st.nbx, :st.nbx]))[:, -1, -1]))
+    else:
+        assert not correct and np.any(paths == 2)          # eigh fallback exercised
+    r = rng.standard_normal(n + m)
+    ux, uc = kkt.solve(st, fac, A, B, jnp.asarray(r[:n]), jnp.asarray(r[n:]))
+    np.testing.assert_allclose(np.concatenate([ux, uc]), spla.spsolve(K, r), rtol=1e-8, atol=1e-8)
+    if q_curv != -0.5:
+        return
+    # the general (non-diagonal R) fast path: the reverse orientation puts fill on constraint rows
+    stb = kkt.build_structure(n, m, vs, cs, hr, hc, jr, jc, order="backward")
+    Ab, Bb = kkt.assemble(stb, jnp.asarray(hv), jnp.asarray(jv), jnp.asarray(dx), jnp.asarray(dc))
+    facb = kkt.factor(stb, Ab, Bb)
+    assert (int(facb.npos), int(facb.nneg), int(facb.nzero)) == (int(np.sum(ev > 0)), int(np.sum(ev < 0)), 0)
+    ux, uc = kkt.solve(stb, facb, Ab, Bb, jnp.asarray(r[:n]), jnp.asarray(r[n:]))
+    np.testing.assert_allclose(np.concatenate([ux, uc]), spla.spsolve(K, r), rtol=1e-8, atol=1e-8)

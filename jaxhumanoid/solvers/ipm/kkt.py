@@ -40,6 +40,7 @@ A single-stage problem (all stages 0) is one dense block.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from typing import NamedTuple
 
 import jax
@@ -354,51 +355,66 @@ def _qd_diag_pre(A, nbx, gamma=QD_GAMMA):
     """Fill-independent part of ``_qd_diag_core`` for all blocks at once (batched, outside the
     scan): with R = diag(r) the dual part of a pivot block, M = I - gamma R is diagonal (m >= 1
     for an IPM, R <= 0; m > 0 is its Cholesky test), Q^T (2G + G R G) Q = Q^T diag(h) Q and
-    Q~ = M^{-1} Q. Returns (P + Q^T diag(h) Q, Q~, r, m > 0)."""
+    Q~ = M^{-1} Q. Returns (P + Q^T diag(h) Q, NaN where not m > 0; Q~; R)."""
     P = A[:, :nbx, :nbx]
     Q = A[:, nbx:, :nbx]
     r = jnp.diagonal(A, axis1=1, axis2=2)[:, nbx:]
     m = 1.0 - gamma * r
     h = gamma * (1.0 / m + 1.0 / (m * m))
     Pb = P + jnp.einsum("kci,kc,kcj->kij", Q, h, Q)
-    return Pb, Q / m[:, :, None], r, jnp.all(m > 0, axis=1)
+    Pb = jnp.where(jnp.all(m > 0, axis=1)[:, None, None], Pb, jnp.nan)   # M not positive definite
+    Rd = r[:, :, None] * jnp.eye(r.shape[1], dtype=A.dtype)
+    return Pb, Q / m[:, :, None], Rd
 
 
-def _qd_diag_core(Pt, Qt, r, gamma=QD_GAMMA):
-    """``_quasidefinite_block`` for a pivot block whose dual part R = diag(r) is diagonal (no fill
-    reaches the constraint rows, ``KKTStructure.b_rows`` all primal), given P~ = ``Pt`` and Q~ =
-    ``Qt`` (``_qd_diag_pre``, minus the fill on P~). With Lp Lp^T = P~, W = Q~ Lp^{-T} and
-    Ls Ls^T = W W^T - R (minus the Schur complement),
+def _chol(M):
+    """Cholesky factor from the lower triangle (no symmetrisation pass; NaN if not positive
+    definite, which the callers test)."""
+    return lax.linalg.cholesky(M, symmetrize_input=False)
+
+
+def _qd_diag_core(Pt, Qt, Rd, gamma=QD_GAMMA):
+    """``_quasidefinite_block`` for a pivot block whose dual part R (``Rd``, diagonal) has no fill
+    (``KKTStructure.b_rows`` all primal), given P~ = ``Pt`` and Q~ = ``Qt`` (``_qd_diag_pre``,
+    minus the fill on P~). With Lp Lp^T = P~, W = Q~ Lp^{-T} and Ls Ls^T = W W^T - R (minus the
+    Schur complement),
 
         T^T D_k T = F J F^T,   F = [[Lp, 0], [W, Ls]],   J = diag(I, -I),
-        D_k^{-1} = N J N^T,    N = T F^{-T},   F^{-1} = [[Lp^{-1}, 0], [-Ls^{-1} W Lp^{-1}, Ls^{-1}]],
+        D_k^{-1} = M^T J M,    M = F^{-1} T^T = [[Lp^{-1}], [K21]] [I, E^T] + [[0, 0], [0, Ls^{-1}]],
 
-    and T = [[I, 0], [E, I]], E = gamma Q~, adds E times the first rows of F^{-T} to the others.
-    Returns (Dinv, ok): ok iff both Cholesky factorisations succeeded (inertia (nbx, nc, 0))."""
+    with F^{-1} = [[Lp^{-1}, 0], [K21, Ls^{-1}]], K21 = -Ls^{-1} W Lp^{-1}, and T = [[I, 0], [E, I]],
+    E = gamma Q~. Written for few XLA operations (each costs ~1-2 us inside ``lax.scan`` on
+    CPU). Returns (Dinv, ok): ok iff both Cholesky factorisations succeeded (inertia (nbx, nc, 0));
+    a failed one is NaN throughout, and so is then Dinv."""
     nbx, nc = Pt.shape[0], Qt.shape[0]
-    Lpi = _tri_inv(jnp.linalg.cholesky(0.5 * (Pt + Pt.T)))
-    W = Qt @ Lpi.T
-    Sc = W @ W.T - jnp.diag(r)
-    Lsi = _tri_inv(jnp.linalg.cholesky(0.5 * (Sc + Sc.T)))
-    K21 = -(Lsi @ W) @ Lpi
-    Ntop = jnp.concatenate([Lpi.T, K21.T], axis=1)                                   # (nbx, nb)
-    Nbot = (gamma * Qt) @ Ntop + jnp.concatenate([jnp.zeros((nc, nbx), Pt.dtype), Lsi.T], axis=1)
-    N = jnp.concatenate([Ntop, Nbot], axis=0)
-    N1, N2 = N[:, :nbx], N[:, nbx:]
-    Dinv = N1 @ N1.T - N2 @ N2.T
-    return Dinv, jnp.all(jnp.isfinite(Dinv))
+    Lpi = _tri_inv(_chol(Pt))
+    W = jnp.einsum("ij,kj->ik", Qt, Lpi)                      # Q~ Lp^{-T}
+    Lsi = _tri_inv(_chol(jnp.einsum("ij,kj->ik", W, W) - Rd))
+    G1t = jnp.concatenate([Lpi, -((Lsi @ W) @ Lpi)], axis=0).T   # first block column of F^{-1}, transposed
+    N = jnp.concatenate([G1t, gamma * (Qt @ G1t)], axis=0)       # N = M^T
+    N = N.at[nbx:, nbx:].add(Lsi.T)
+    sgn = np.concatenate([np.ones(nbx), -np.ones(nc)])[None, :]
+    Dinv = jnp.einsum("ik,jk->ij", N * sgn, N)                   # (XLA:CPU: faster than M^T J M)
+    return Dinv, jnp.isfinite(Dinv[0, 0]) & jnp.isfinite(Dinv[-1, -1])
 
 
 def _pivot(Dk, nbx, fast, rel_zero_tol, qd=None):
     """(Dinv, nneg, nzero, path) of one pivot block: path 0 quasi-definite, 2 eigendecomposition.
-    ``qd``: (Dinv, ok) of the fast path if computed by the caller (``_qd_diag_core``)."""
-    nb = Dk.shape[0]
+    ``Dk``: the block, or a function of no arguments building it (only the eigendecomposition
+    needs it when the caller computed the fast path, ``qd`` = (Dinv, ok))."""
+    build = Dk if callable(Dk) else (lambda: Dk)
     if fast and nbx > 0:
-        Dinv_f, ok = _quasidefinite_block(Dk, nbx) if qd is None else qd
+        if qd is None:
+            Dm = build()
+            nb = Dm.shape[0]
+            qd = _quasidefinite_block(Dm, nbx)
+            build = lambda: Dm            # noqa: E731
+        Dinv_f, ok = qd
+        nb = Dinv_f.shape[0]
         return lax.cond(
-            ok, lambda D_: (Dinv_f, jnp.asarray(nb - nbx, jnp.int64), jnp.zeros((), jnp.int64), jnp.zeros((), jnp.int32)),
-            lambda D_: _pivot_block(D_, rel_zero_tol) + (jnp.full((), 2, jnp.int32),), Dk)
-    return _pivot_block(Dk, rel_zero_tol) + (jnp.full((), 2, jnp.int32),)
+            ok, lambda: (Dinv_f, jnp.asarray(nb - nbx, jnp.int64), jnp.zeros((), jnp.int64), jnp.zeros((), jnp.int32)),
+            lambda: _pivot_block(build(), rel_zero_tol) + (jnp.full((), 2, jnp.int32),))
+    return _pivot_block(build(), rel_zero_tol) + (jnp.full((), 2, jnp.int32),)
 
 
 def _sel(ix):
@@ -452,7 +468,10 @@ def _matvec(st: KKTStructure, A, B, u):
     return y.at[:-1, cb].add(jnp.einsum("kji,kj->ki", Bc, u[1:, rb]))
 
 
+@functools.partial(jax.jit, static_argnames=("st", "rel_zero_tol", "fast"))
 def _factor(st: KKTStructure, A, B, rel_zero_tol, fast):
+    # jitted with the structure static (hashed by identity): repeated calls, and the several
+    # call sites in one IPM trace, reuse one traced and compiled factorisation
     d, A, Bs = _equilibrate_compact(st, A, B)     # Bs: (S, r, c) nonzero part of the B_k
     if rel_zero_tol is None:
         rel_zero_tol = 10.0 * st.nb * float(np.finfo(np.float64).eps)
@@ -464,29 +483,42 @@ def _factor(st: KKTStructure, A, B, rel_zero_tol, fast):
     # their pivot blocks is the diagonal -D_c (the (2,2) block of K is diagonal) and the fast
     # path's fill-independent work is done for all blocks at once, outside the scan
     diag_r = fast and 0 < nbx < nb and bool(np.all(st.b_rows < nbx))
-    pre = _qd_diag_pre(A, nbx) if diag_r else (A[:, :1, :1], A[:, :1, :1], A[:, 0], A[:, 0, 0] > 0)
+    pre = _qd_diag_pre(A, nbx) if diag_r else ()
+    i64 = jnp.int64
 
     def body(carry, inp):
-        C, X = carry                              # fill on block k's rows b_rows; border coupling
-        a, bs, pb, qt, rr_, mok = inp
-        Dk = a.at[rr].add(-C)
-        Dk = 0.5 * (Dk + Dk.T)
-        qd = None
+        C, X = carry        # fill on block k's rows b_rows; (-1)^k X_k, border coupling
+        k, bs = inp[:2]
+
+        def Dk():
+            D_ = A[k].at[rr].add(-C)
+            return 0.5 * (D_ + D_.T)
+
+        def slow():
+            Dinv_, nneg_, nzero_ = _pivot_block(Dk(), rel_zero_tol)
+            return Dinv_, jnp.stack([nneg_, nzero_, jnp.full((), 2, i64)])
+
         if diag_r:
-            Dq, okq = _qd_diag_core(pb.at[rr].add(-C), qt, rr_)
-            qd = (Dq, okq & mok)
-        Dinv, nneg, nzero, path = _pivot(Dk, nbx, fast, rel_zero_tol, qd)
-        Lk = bs @ Dinv[cb]                        # B_k D_k^{-1} on rows b_rows (r x nb)
-        Cn = Lk[:, cb] @ bs.T
-        Xn = -X @ Lk[:, rb].T                     # (border, block k+1) fill: -X_k D_k^{-1} B_k^T
-        return (0.5 * (Cn + Cn.T), Xn), (Dinv, Lk, X, nneg, nzero, path)
+            pb, qt, rd = inp[2:]
+            Dq, okq = _qd_diag_core(pb.at[rr].add(-C), qt, rd)
+            Dinv, info = lax.cond(okq, lambda: (Dq, jnp.array([nb - nbx, 0, 0], i64)), slow)
+        elif fast and nbx > 0:
+            D_ = Dk()
+            Dq, okq = _quasidefinite_block(D_, nbx)
+            Dinv, info = lax.cond(okq, lambda: (Dq, jnp.array([nb - nbx, 0, 0], i64)), slow)
+        else:
+            Dinv, info = slow()
+        Lk = bs @ Dinv[cb]                                  # B_k D_k^{-1} on rows b_rows (r x nb)
+        Cn = jnp.einsum("ij,kj->ik", Lk[:, cb], bs)         # B_k D_k^{-1} B_k^T (lower part read)
+        Xn = jnp.einsum("ar,sr->as", X, Lk[:, rb])          # X_{k+1} = -X_k D_k^{-1} B_k^T
+        return (Cn, Xn), (Dinv, Lk, X, info)
 
     if S > 1:
         X1 = jnp.zeros((st.b_rows.size, nb), A.dtype).at[:, cb].set(Bs[0]).T   # B_0^T: block 0 is the border
         C0 = jnp.zeros((st.b_rows.size, st.b_rows.size), dtype=A.dtype)
-        _, (Dinv, Lk, X, nneg, nzero, path) = lax.scan(body, (C0, X1), (A[1:], Bs[1:]) + tuple(v[1:] for v in pre))
-        Xr = X                                    # (S-1, nb, r)
-        Z = jnp.einsum("kar,krs,kbs->ab", Xr, Dinv[:, rb][:, :, rb], Xr)
+        _, (Dinv, Lk, X, info) = lax.scan(body, (C0, X1), (jnp.arange(1, S), Bs[1:]) + tuple(v[1:] for v in pre))
+        nneg, nzero, path = info[:, 0], info[:, 1], info[:, 2].astype(jnp.int32)
+        Z = jnp.einsum("kar,krs,kbs->ab", X, Dinv[:, rb][:, :, rb], X)
         D0 = A[0] - Z
     else:
         D0 = A[0]
@@ -520,13 +552,13 @@ def factor(st: KKTStructure, A, B, rel_zero_tol: float | None = None, fast: bool
     where it fails are eigen-decomposed (``lax.cond``), so the inertia is exact in both cases.
     ``fast=False`` eigen-decomposes every block.
     """
-    return _factor(st, A, B, rel_zero_tol, fast)[0]
+    return _factor(st, A, B, rel_zero_tol=rel_zero_tol, fast=fast)[0]
 
 
 def pivot_paths(st: KKTStructure, A, B, fast: bool = True):
     """(S,) how each pivot block was factored: 0 quasi-definite (Cholesky), 2 eigendecomposition.
     Entry 0 is the border block. For diagnostics and benchmarks."""
-    return _factor(st, A, B, None, fast)[1]
+    return _factor(st, A, B, rel_zero_tol=None, fast=fast)[1]
 
 
 def _solve_vec(st: KKTStructure, fac: Factor, X1t, r):
@@ -535,43 +567,46 @@ def _solve_vec(st: KKTStructure, fac: Factor, X1t, r):
     Elimination order 1, ..., S-1, 0 (``factor``). The border couplings X_k = X_1 (-T_1) ...
     (-T_{k-1}), T_k = (L_{k+1,k}[:, b_rows])^T (r x r), are not stored: the sums they enter are
     evaluated by Horner-type recursions on r-vectors. ``X1t`` = X_1^T = equilibrated
-    B_0[b_rows] (``_border_coupling``)."""
+    B_0[b_rows] (``_border_coupling``). The scans run over all S blocks (block 0's entries are
+    dummies, L[0] = 0), so that no (S-1)-slices of the factor arrays are copied."""
     rb = _sel(st.b_rows)
+    nr = st.b_rows.size
     r = fac.d * r
     Dinv, L = fac.Dinv, fac.L
     if st.S == 1:
         return fac.d * (r @ Dinv[0].T)
 
-    def fwd(zprev, inp):                  # z_k = r_k - L_{k,k-1} z_{k-1}
-        rk, Lprev = inp
-        zk = rk.at[rb].add(-(Lprev @ zprev))
-        return zk, zk
+    def fwd(q, inp):                      # z_k = r_k - L_{k,k-1} z_{k-1}  (q = L_{k,k-1} z_{k-1})
+        rk, Lk = inp
+        zk = rk.at[rb].add(-q)
+        return Lk @ zk, zk
 
-    _, z = lax.scan(fwd, jnp.zeros_like(r[0]), (r[1:], L[:-1]))
-    w = jnp.einsum("kij,kj->ki", Dinv[1:], z)
-    T = jnp.swapaxes(L[1:, :, rb], 1, 2)  # (S-1, r, r)
+    _, z = lax.scan(fwd, jnp.zeros((nr,), r.dtype), (r, L))
+    w = jnp.einsum("kij,kj->ki", Dinv, z)
+    T = L[:, :, rb]                       # (S, r, r): T_k^T
 
     def horner(h, inp):                   # h_k = w_k[rb] - T_k h_{k+1};  sum_k X_k w_k[rb] = X_1 h_1
-        wk, Tk = inp
-        hk = wk[rb] - Tk @ h
-        return hk, None
+        wk, Tkt = inp
+        hk = wk[rb] - jnp.einsum("ji,j->i", Tkt, h)
+        return hk, hk
 
-    h1, _ = lax.scan(horner, jnp.zeros((st.b_rows.size,), r.dtype), (w, T), reverse=True)
-    u0 = Dinv[0] @ (r[0] - X1t.T @ h1)
+    _, hs = lax.scan(horner, jnp.zeros((nr,), r.dtype), (w, T), reverse=True)
+    u0 = Dinv[0] @ (r[0] - jnp.einsum("rn,r->n", X1t, hs[1]))
 
-    def gfwd(g, Tk):                      # g_k = X_k^T u_0:  g_{k+1} = -T_k^T g_k
-        return -(Tk.T @ g), g
+    def gfwd(g, Tkt):                     # g_k = X_k^T u_0:  g_{k+1} = -T_k^T g_k
+        return -(Tkt @ g), g
 
-    _, g = lax.scan(gfwd, X1t @ u0, T)
-    wc = w - jnp.einsum("kir,kr->ki", Dinv[1:, :, rb], g)
+    _, g = lax.scan(gfwd, X1t @ u0, T[1:])
+    gp = jnp.zeros_like(r).at[1:, rb].set(g)
+    wc = w - jnp.einsum("kij,kj->ki", Dinv, gp)
 
     def bwd(unext, inp):                  # u_k = w_k - D_k^{-1} X_k^T u_0 - L_{k+1,k}^T u_{k+1}
         wk, Lk = inp
-        uk = wk - Lk.T @ unext[rb]
+        uk = wk - jnp.einsum("ri,r->i", Lk, unext[rb])
         return uk, uk
 
-    _, u = lax.scan(bwd, jnp.zeros_like(r[0]), (wc, L[1:]), reverse=True)
-    return fac.d * jnp.concatenate([u0[None], u], axis=0)
+    _, u = lax.scan(bwd, jnp.zeros_like(r[0]), (wc, L), reverse=True)
+    return fac.d * u.at[0].set(u0)
 
 
 def _border_coupling(st: KKTStructure, fac: Factor, B):
@@ -609,6 +644,11 @@ def solve(st: KKTStructure, fac: Factor, A, B, rx, rc, min_steps: int = 1, max_s
     min/max_refinement_steps, residual_ratio_max): u_{i+1} = u_i + K^{-1}(r - K u_i) until the
     residual of the equilibrated system, ||d (r - K u)||_inf / (||u / d||_inf + ||d r||_inf), is at
     most ``residual_ratio_max`` (after at least ``min_steps`` and at most ``max_steps`` refinements)."""
+    return _solve(st, fac, A, B, rx, rc, min_steps, max_steps, residual_ratio_max)
+
+
+@functools.partial(jax.jit, static_argnames=("st",))
+def _solve(st, fac, A, B, rx, rc, min_steps, max_steps, residual_ratio_max):
     r = to_blocks(st, rx, rc)
     dr = jnp.max(jnp.abs(fac.d * r))
     X1t = _border_coupling(st, fac, B)
