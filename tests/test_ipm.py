@@ -44,14 +44,27 @@ def test_hs071_multipliers_match_ipopt_convention():
     np.testing.assert_allclose(grad + J.T @ r.lam_g - r.z_l + r.z_u, 0.0, atol=1e-6)
 
 
-def test_restoration_phase_rescues_wachter_biegler_example():
-    nlp, bounds, p, f_star = tp.wachter_biegler()
+@pytest.mark.parametrize("x0,status", [((-2.0, 1.0, 1.0), "Infeasible_Problem_Detected"),
+                                       ((-1.0, 3.0, 0.5), "Solve_Succeeded")])
+def test_restoration_phase_as_ipopt_on_wachter_biegler_example(x0, status):
+    """The filter line search fails on this example and both starts enter the l1 restoration
+    phase; IPOPT 3.14 then ends at the locally infeasible point (-1, 0, 0) from the paper's start
+    and at the optimum from the other one. The IPM must do the same, in as many iterations."""
+    from jaxhumanoid.ocp.nlp import Bounds
+    from jaxhumanoid.solvers.ipopt import solve_ipopt
+
+    nlp, b, p, f_star = tp.wachter_biegler()
+    bounds = Bounds(np.array(x0), b.xl, b.xu, b.gl, b.gu)
     r = solve_ipm(nlp, p, bounds)
-    assert r.success, r.log
-    assert abs(r.objective - f_star) < 1e-6
-    np.testing.assert_allclose(r.x, [1.0, 0.0, 0.5], atol=1e-6)
-    assert ord("r") in r.history["kind"], "the filter line search alone must fail on this example"
-    assert r.history["resto_iters"][-1] > 0
+    ref = solve_ipopt(nlp, p, bounds)
+    assert r.status == ref.status == status, r.log
+    assert ord("R") in r.history["kind"], "the filter line search alone must fail on this example"
+    assert r.history["resto_iters"][-1] > 0 and r.history["mode"].sum() == r.history["resto_iters"][-1]
+    # IPOPT tightens the restoration problem's tolerance once before declaring infeasibility
+    assert abs(r.iterations - ref.iterations) <= 4, (r.iterations, ref.iterations)
+    np.testing.assert_allclose(r.x, ref.x, atol=1e-6)
+    if status == "Solve_Succeeded":
+        assert abs(r.objective - f_star) < 1e-6
 
 
 def test_infeasible_problem_detected():
@@ -118,24 +131,48 @@ def test_bad_options_raise(bad, match):
         IPMOptions(**bad) if "no_such_option" not in bad else solve_ipm(*tp.hs071()[:1], None, None, options=bad)
 
 
-def test_humanoid_pseudo_static_stage_small_n():
-    """Stage 1 of 2S on T1 (pseudo-static (8), relaxed contact law) at N1 = 10 with the 2S stage-1
-    options: a fixed initial state makes the first KKT pivot block structurally singular, which
-    the elimination order must avoid (kkt.build_structure)."""
+def test_humanoid_pseudo_static_stage_small_n_as_ipopt():
+    """Stage 1 of 2S on T3 (pseudo-static (8), relaxed contact law) at N1 = 10 with the 2S stage-1
+    options. A fixed initial state makes one end pivot block structurally singular, which the
+    elimination order must handle (kkt.build_structure); the iteration follows IPOPT's (filter,
+    inertia correction, degeneracy test), so both reach the same optimum in as many iterations."""
     from jaxhumanoid.model.params import ContactParams
+    from jaxhumanoid.solvers.ipopt import solve_ipopt
     from jaxhumanoid.strategy import solve as strat
     from jaxhumanoid.strategy.problem import build_problem
 
     relaxed = ContactParams.relaxed()
-    final = build_problem("T1", "A,F+C,2S", N=20)
+    final = build_problem("T3", "A,F+C,2S", N=20)
     q1, _ = strat.reseat_for_contact(final.p, final.p.q_start, final.layout.active, relaxed)
-    prob = build_problem("T1", "A,F+C,2S", N=10, pseudo_static=True, contact=relaxed, q_start=q1)
+    prob = build_problem("T3", "A,F+C,2S", N=10, pseudo_static=True, contact=relaxed, q_start=q1)
     r = solve_ipm(prob.nlp, prob.p, prob.bounds, options=strat.STAGE1_DEFAULTS)
-    assert r.status == "Solve_Succeeded", r.log
+    ref = solve_ipopt(prob.nlp, prob.p, prob.bounds, options=strat.STAGE1_DEFAULTS)
+    assert r.status == ref.status == "Solve_Succeeded", r.log
     assert r.max_constraint_violation <= 1e-6
-    assert r.iterations <= 400
-    # the reported multipliers make the Lagrangian stationary (IPOPT's sign convention)
-    grad = np.asarray(prob.nlp.grad(jnp.asarray(r.x), prob.p))
-    jt = np.zeros(prob.nlp.n)
-    np.add.at(jt, prob.nlp.jac_cols, np.asarray(prob.nlp.jac_values(jnp.asarray(r.x), prob.p)) * r.lam_g[prob.nlp.jac_rows])
-    assert np.max(np.abs(grad + jt - r.z_l + r.z_u)) <= 1e-5 * max(1.0, np.max(np.abs(grad)))
+    assert abs(r.iterations - ref.iterations) <= 0.1 * ref.iterations, (r.iterations, ref.iterations)
+    assert abs(r.objective - ref.objective) <= 1e-8 * abs(ref.objective)
+    np.testing.assert_allclose(r.x, ref.x, atol=1e-5)
+    # the reported multipliers make the Lagrangian stationary (IPOPT's sign convention), as
+    # closely as IPOPT's own (both stop on the scaled problem's dual infeasibility)
+    def stationarity(res):
+        grad = np.asarray(prob.nlp.grad(jnp.asarray(res.x), prob.p))
+        jt = np.zeros(prob.nlp.n)
+        np.add.at(jt, prob.nlp.jac_cols,
+                  np.asarray(prob.nlp.jac_values(jnp.asarray(res.x), prob.p)) * res.lam_g[prob.nlp.jac_rows])
+        return np.max(np.abs(grad + jt - res.z_l + res.z_u))
+
+    assert stationarity(r) <= max(10 * stationarity(ref), 1e-6), (stationarity(r), stationarity(ref))
+
+
+@pytest.mark.slow
+def test_full_task_t3_two_stage_as_ipopt():
+    """The paper's T3 with A,F+C,2S at N = 100: both stages succeed with the IPM and reach
+    IPOPT's optimum (objective and trajectory), in no more iterations than 1.5x IPOPT's."""
+    from jaxhumanoid.strategy import solve as strat
+
+    a = strat.solve("T3", "A,F+C,2S", solver="ipm")
+    b = strat.solve("T3", "A,F+C,2S", solver="ipopt")
+    assert [s.status for s in a.stages] == ["Solve_Succeeded"] * 2, [s.status for s in a.stages]
+    assert abs(a.objective - b.objective) <= 1e-6 * abs(b.objective)
+    assert np.max(np.abs(a.q - b.q)) <= 1e-4
+    assert sum(s.iterations for s in a.stages) <= 1.5 * sum(s.iterations for s in b.stages)

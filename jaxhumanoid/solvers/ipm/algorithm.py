@@ -16,10 +16,15 @@ is solved approximately for a decreasing sequence of mu (monotone Fiacco-McCormi
 primal-dual Newton steps (11)-(13), with inertia correction (Algorithm IC, Sec. 3.1), fraction to
 the boundary (15), the safeguard (16) on the bound multipliers, a backtracking filter line search
 (Sec. 2.3: switching condition (19), Armijo (20), sufficient decrease (18), filter), second-order
-corrections (Sec. 2.4) and a feasibility-restoration phase (Sec. 3.3, simplified: a damped
-Gauss-Newton method on 1/2 ||g(x) - s||^2 with log barriers keeping the bounds, see
-``_restoration``). All of it runs under one ``lax.while_loop``: ``make_ipm`` returns a pure
-function that can be jitted and ``vmap``-ped over a batch (converged members freeze).
+corrections (Sec. 2.4) and IPOPT's feasibility-restoration phase (Sec. 3.3): the l1 problem
+
+    min  rho sum(p + n) + eta/2 ||D_R (x - x_R)||^2   s.t.  c(x, s) - p + n = 0,  p, n >= 0
+
+(eta = sqrt(mu), D_R = diag(1/max(1, |x_R|))), solved by the same iteration in a restoration mode:
+its p and n steps are eliminated into the same block system, so one traced factorisation serves
+both, and restoration iterations count as iterations, as in IPOPT's log. All of it runs under
+one ``lax.while_loop``: ``make_ipm`` returns a pure function that can be jitted and
+``vmap``-ped over a batch (converged members freeze).
 """
 
 from __future__ import annotations
@@ -87,6 +92,37 @@ class Evals(NamedTuple):
     jac: jax.Array      # scaled Jacobian values
 
 
+class Resto(NamedTuple):
+    """Restoration-phase variables and what the return to the original problem needs."""
+    on: jax.Array           # the iteration is solving the restoration problem
+    fresh: jax.Array        # its first iteration (no barrier update then, as IPOPT)
+    p: jax.Array            # (m,) positive / negative parts of c(x, s), rows with p, n: ~free
+    n: jax.Array
+    zp: jax.Array           # (m,) their bound multipliers
+    zn: jax.Array
+    xR: jax.Array           # (n,) reference point of the proximity term
+    dr: jax.Array           # (n,) diagonal of D_R^2 = 1/max(1, |x_R|)^2 (0 when not in restoration)
+    s0: jax.Array           # slacks and bound multipliers where the restoration started
+    z0: tuple
+    mu_orig: jax.Array      # the original problem's mu, filter and regularisation, stashed
+    theta_ref: jax.Array
+    phi_ref: jax.Array
+    inf_ref: jax.Array
+    filt_theta: jax.Array
+    filt_phi: jax.Array
+    filt_n: jax.Array
+    theta_min: jax.Array
+    theta_max: jax.Array
+    dw_last: jax.Array
+    pert: jax.Array
+
+
+def resto_off(R: Resto) -> Resto:
+    """The inactive restoration state (p = n = 1 keep the masked logarithms finite)."""
+    return R._replace(on=jnp.zeros((), bool), fresh=jnp.zeros((), bool), p=jnp.ones_like(R.p), n=jnp.ones_like(R.n),
+                      zp=jnp.zeros_like(R.zp), zn=jnp.zeros_like(R.zn), dr=jnp.zeros_like(R.dr))
+
+
 class State(NamedTuple):
     it: Iterate
     ev: Evals
@@ -100,8 +136,7 @@ class State(NamedTuple):
     theta_min: jax.Array
     theta_max: jax.Array
     dw_last: jax.Array
-    n_perturbed: jax.Array
-    n_dc: jax.Array
+    pert: jax.Array         # (3,) IPOPT's degeneracy test state, see finalize_test
     n_acceptable: jax.Array
     tiny_count: jax.Array
     cur_acc: jax.Array      # the current iterate passes the acceptable-level tests
@@ -109,12 +144,13 @@ class State(NamedTuple):
     acc_ev: Evals           # and restoration fail, Sec. 3.3) and its evaluations
     has_acc: jax.Array
     resto_iters: jax.Array
+    rs: Resto
     hist: dict
 
 
 HIST_FIELDS = ("obj", "inf_pr", "inf_du", "mu", "d_norm", "reg", "alpha_du", "alpha_pr", "ls",
-               "kind", "compl", "resto_iters", "n_fact")
-INT_FIELDS = ("ls", "kind", "resto_iters", "n_fact")
+               "kind", "compl", "resto_iters", "n_fact", "mode", "res_ratio")
+INT_FIELDS = ("ls", "kind", "resto_iters", "n_fact", "mode")
 
 
 def _segsum(vals, idx, size):
@@ -198,73 +234,92 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         return jnp.sum(jnp.abs(constr_resid(P, g, s)))
 
     # ---------------------------------------------------------------- optimality error (5)
-    def errors(P, it, ev, mu):
+    def errors(P, it, ev, mu, R):
+        """Optimality errors (5) of the problem being solved (in the restoration phase, of the
+        restoration problem); ``pr_s``/``pr_u``: the original constraint violation, scaled and not."""
         x, s, y = it.x, it.s, it.y
+        rr = R.on & ~P.free
+        rho = o.resto_penalty_parameter
         dxl, dxu, dsl, dsu = slacks(P, x, s)
-        gLx = jnp.where(P.fixed, 0.0, ev.grad + jt_mult(ev.jac, y) - it.zl + it.zu)
+        gf = jnp.where(R.on, o.resto_proximity_weight * jnp.sqrt(mu) * R.dr * (x - R.xR), ev.grad)
+        gLx = jnp.where(P.fixed, 0.0, gf + jt_mult(ev.jac, y) - it.zl + it.zu)
         gLs = jnp.where(P.hsl | P.hsu, -y - it.vl + it.vu, 0.0)
-        dual = jnp.maximum(jnp.max(jnp.abs(gLx), initial=0.0), jnp.max(jnp.abs(gLs), initial=0.0))
-        c = constr_resid(P, ev.g, s)
-        primal = jnp.max(jnp.abs(c), initial=0.0)
+        gLpn = jnp.where(rr, jnp.maximum(jnp.abs(rho - y - R.zp), jnp.abs(rho + y - R.zn)), 0.0)
+        dual = jnp.maximum(jnp.maximum(jnp.max(jnp.abs(gLx), initial=0.0), jnp.max(jnp.abs(gLs), initial=0.0)),
+                           jnp.max(gLpn, initial=0.0))
+        c_orig = constr_resid(P, ev.g, s)
+        primal = jnp.max(jnp.abs(c_orig + jnp.where(rr, R.n - R.p, 0.0)), initial=0.0)
+
+        def cmax(v, mask):
+            return jnp.max(jnp.where(mask, jnp.abs(v), 0.0), initial=0.0)
 
         def compl(m_):
-            return jnp.maximum(
-                jnp.maximum(jnp.max(jnp.where(P.hxl, jnp.abs(dxl * it.zl - m_), 0.0), initial=0.0),
-                            jnp.max(jnp.where(P.hxu, jnp.abs(dxu * it.zu - m_), 0.0), initial=0.0)),
-                jnp.maximum(jnp.max(jnp.where(P.hsl, jnp.abs(dsl * it.vl - m_), 0.0), initial=0.0),
-                            jnp.max(jnp.where(P.hsu, jnp.abs(dsu * it.vu - m_), 0.0), initial=0.0)))
+            return jnp.max(jnp.stack([cmax(dxl * it.zl - m_, P.hxl), cmax(dxu * it.zu - m_, P.hxu),
+                                      cmax(dsl * it.vl - m_, P.hsl), cmax(dsu * it.vu - m_, P.hsu),
+                                      cmax(R.p * R.zp - m_, rr), cmax(R.n * R.zn - m_, rr)]))
 
-        nz = (jnp.sum(P.hxl) + jnp.sum(P.hxu) + jnp.sum(P.hsl) + jnp.sum(P.hsu)).astype(float)
-        z1 = jnp.sum(jnp.abs(it.zl)) + jnp.sum(jnp.abs(it.zu)) + jnp.sum(jnp.abs(it.vl)) + jnp.sum(jnp.abs(it.vu))
+        nz = (jnp.sum(P.hxl) + jnp.sum(P.hxu) + jnp.sum(P.hsl) + jnp.sum(P.hsu) + 2 * jnp.sum(rr)).astype(float)
+        z1 = (jnp.sum(jnp.abs(it.zl)) + jnp.sum(jnp.abs(it.zu)) + jnp.sum(jnp.abs(it.vl)) + jnp.sum(jnp.abs(it.vu))
+              + jnp.sum(jnp.where(rr, R.zp + R.zn, 0.0)))
         sd = jnp.maximum(o.s_max, (jnp.sum(jnp.abs(y)) + z1) / jnp.maximum(1.0, m + nz)) / o.s_max
         sc = jnp.maximum(o.s_max, z1 / jnp.maximum(1.0, nz)) / o.s_max
         c0 = compl(0.0)
         E0 = jnp.maximum(jnp.maximum(dual / sd, primal), c0 / sc)
         Emu = jnp.maximum(jnp.maximum(dual / sd, primal), compl(mu) / sc)
+        pr_s = jnp.max(jnp.abs(c_orig), initial=0.0)
         # unscaled quantities for IPOPT's absolute tests
-        pr_unscaled = jnp.max(jnp.abs(c) / P.sg, initial=0.0)
-        du_unscaled = dual / P.sf
-        co_unscaled = c0 / P.sf
-        return dict(E0=E0, Emu=Emu, dual=dual, primal=primal, compl=c0, pr_u=pr_unscaled,
-                    du_u=du_unscaled, co_u=co_unscaled, sd=sd, sc=sc)
-
-    def emu_only(P, it, ev, mu):
-        return errors(P, it, ev, mu)["Emu"]
+        return dict(E0=E0, Emu=Emu, dual=dual, primal=primal, compl=c0, pr_s=pr_s,
+                    pr_u=jnp.max(jnp.abs(c_orig) / P.sg, initial=0.0), du_u=dual / P.sf, co_u=c0 / P.sf)
 
     # ---------------------------------------------------------------- Newton step (13)
-    def kkt_parts(P, it, Wvals, sig_x, sig_s, dw, dc):
-        """Blocks of the reduced system (slack step eliminated) for given regularisation."""
+    def kkt_parts(P, rr, sig_x, sig_s, sig_p, sig_n, dw, dc):
+        """Diagonals of the reduced system for given regularisation. The slack step and, in the
+        restoration phase, the p and n steps are eliminated: each adds 1/(Sigma + delta_w) to
+        minus the constraint diagonal of its row (a positive pivot, so the inertia is unchanged)."""
         jac_mask = jnp.where(P.free[jr] | P.fixed[jc], 0.0, 1.0)
         h_mask = jnp.where(P.fixed[hr] | P.fixed[hc], 0.0, 1.0)
         ineq_b = P.hsl | P.hsu
         inv_s = jnp.where(ineq_b, 1.0 / (sig_s + dw), 0.0)
+        inv_p = jnp.where(rr, 1.0 / (sig_p + dw), 0.0)
+        inv_n = jnp.where(rr, 1.0 / (sig_n + dw), 0.0)
         diag_x = jnp.where(P.fixed, 1.0, sig_x + dw)
-        diag_c = jnp.where(P.free, -1.0, -(dc + inv_s))
-        return h_mask, jac_mask, inv_s, diag_x, diag_c
+        diag_c = jnp.where(P.free, -1.0, -(dc + inv_s + inv_p + inv_n))
+        return h_mask, jac_mask, (inv_s, inv_p, inv_n), diag_x, diag_c
 
-    def factorize(P, Wvals, jac, sig_x, sig_s, dw, dc, fast=True, base=None):
+    def factorize(P, rr, Wvals, jac, sigs, dw, dc, fast=True, base=None):
         """Assemble and factor; ``fast=False`` (eigh blocks only) keeps the rarely used call
-        sites (restoration, multiplier initialisation) small for the compiler. ``base``: blocks
-        assembled once with a zero diagonal, to which only the diagonal is added (IC trials)."""
-        h_mask, jac_mask, inv_s, diag_x, diag_c = kkt_parts(P, None, Wvals, sig_x, sig_s, dw, dc)
+        site (multiplier initialisation) small for the compiler. ``base``: blocks assembled
+        once with a zero diagonal, to which only the diagonal is added (IC trials)."""
+        h_mask, jac_mask, invs, diag_x, diag_c = kkt_parts(P, rr, *sigs, dw, dc)
         if base is None:
             A, B = kkt.assemble(st, Wvals * h_mask, jac * jac_mask, diag_x, diag_c)
         else:
             A, B = kkt.add_diagonal(st, base[0], diag_x, diag_c), base[1]
         fac = kkt.factor(st, A, B, fast=fast)
-        return A, B, fac, inv_s
+        return A, B, fac, invs
 
     def assemble_base(P, Wvals, jac):
-        h_mask, jac_mask, _, _, _ = kkt_parts(P, None, Wvals, jnp.zeros(n), jnp.zeros(m), 0.0, 0.0)
+        jac_mask = jnp.where(P.free[jr] | P.fixed[jc], 0.0, 1.0)
+        h_mask = jnp.where(P.fixed[hr] | P.fixed[hc], 0.0, 1.0)
         return kkt.assemble(st, Wvals * h_mask, jac * jac_mask, jnp.zeros(n), jnp.zeros(m))
 
-    def solve_reduced(P, A, B, fac, inv_s, rx, rs, c):
-        """Solve (13) given residuals r_x (grad_x phi + J^T y), r_s (grad_s phi - y), c."""
+    def solve_reduced(P, A, B, fac, invs, rx, rs, rp, rn, c):
+        """Solve (13) given residuals r_x (grad_x phi + J^T y), r_s (grad_s phi - y), r_p, r_n
+        (restoration only: grad phi -/+ y) and the constraint residual c; the eliminated steps
+        are recovered from their rows: ds = (dy - r_s)/Sigma_s, dp = (dy - r_p)/Sigma_p,
+        dn = -(dy + r_n)/Sigma_n (each Sigma including delta_w)."""
+        inv_s, inv_p, inv_n = invs
         bx = jnp.where(P.fixed, 0.0, -rx)
-        bc = jnp.where(P.free, 0.0, -c - inv_s * rs)
+        bc = jnp.where(P.free, 0.0, -c - inv_s * rs - inv_p * rp + inv_n * rn)
         dx, dy = kkt.solve(st, fac, A, B, bx, bc, *refinement())
-        ds = inv_s * (dy - rs)
-        return dx, ds, dy
+        # IPOPT's residual ratio of the solve (on the reduced system)
+        res = kkt.matvec(A, B, kkt.to_blocks(st, dx, dy)) - kkt.to_blocks(st, bx, bc)
+        nsol = jnp.maximum(jnp.max(jnp.abs(dx), initial=0.0), jnp.max(jnp.abs(dy), initial=0.0))
+        nrhs = jnp.maximum(jnp.max(jnp.abs(bx), initial=0.0), jnp.max(jnp.abs(bc), initial=0.0))
+        ratio = jnp.max(jnp.abs(res)) / jnp.maximum(jnp.minimum(nsol, 1e6 * nrhs) + nrhs, 1e-300)
+        ds = jnp.where(P.eq | P.free, 0.0, inv_s * (dy - rs))
+        dy = jnp.where(P.free, 0.0, dy)
+        return dx, ds, dy, inv_p * (dy - rp), -inv_n * (dy + rn), ratio
 
     def dual_steps(P, it, dx, ds, mu):
         """Bound-multiplier steps from the linearised complementarity (11)."""
@@ -292,60 +347,99 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         return a
 
     def frac_dual(z, dz, mask, tau):
+        """Fraction to the boundary (15) for a vector bounded below by 0."""
         return jnp.min(jnp.where(mask & (dz < 0), -tau * z / jnp.where(dz < 0, dz, -1.0), 1.0), initial=1.0)
 
     def kappa_sigma_reset(P, x, s, zl, zu, vl, vu, mu):
         """Safeguard (16): keep z_i (x_i - xl_i) within [mu/kappa_sigma, kappa_sigma mu]."""
         dxl, dxu, dsl, dsu = slacks(P, x, s)
+        return (clip_mult(zl, dxl, P.hxl, mu), clip_mult(zu, dxu, P.hxu, mu),
+                clip_mult(vl, dsl, P.hsl, mu), clip_mult(vu, dsu, P.hsu, mu))
+
+    def clip_mult(z, d, mask, mu):
         ks = o.kappa_sigma
-
-        def clip(z, d, mask):
-            return jnp.where(mask, jnp.clip(z, mu / (ks * d), ks * mu / d), 0.0)
-
-        return clip(zl, dxl, P.hxl), clip(zu, dxu, P.hxu), clip(vl, dsl, P.hsl), clip(vu, dsu, P.hsu)
+        return jnp.where(mask, jnp.clip(z, mu / (ks * d), ks * mu / d), 0.0)
 
     # ---------------------------------------------------------------- inertia correction (IC)
-    def inertia_corrected_factor(P, Wvals, jac, sig_x, sig_s, dw_last, mu, skip_zero, jac_degen):
-        """Algorithm IC (Sec. 3.1): smallest delta_w (and delta_c if K is singular) giving inertia
-        (n, m, 0); a single traced factorisation inside one while_loop. The first pass has no
-        shift, unless ``skip_zero`` (IPOPT's degenerate-Hessian heuristic: after
-        ``degen_iters_max`` consecutive perturbed iterations, start from kappa_w^- delta_w_last;
-        likewise delta_c > 0 from the start once K was singular that many iterations in a row)."""
-        dw1 = jnp.where(dw_last == 0.0, o.first_hessian_perturbation,
-                        jnp.maximum(o.min_hessian_perturbation, o.perturb_dec_fact * dw_last))
-        inc = jnp.where(dw_last == 0.0, o.perturb_inc_fact_first, o.perturb_inc_fact)
+    # IPOPT's degeneracy test (PDPerturbationHandler): while it is undetermined whether the
+    # Hessian (h) or the Jacobian (j) is structurally degenerate, the trial (delta_c, delta_w)
+    # pattern that first succeeds decides it; a degenerate part is perturbed from the start of
+    # every later iteration. pert = (h, j, degen_iters), h/j: 0 undetermined, 1 no, 2 yes.
+    T_NONE, T_00, T_C0, T_0X, T_CX = 0, 1, 2, 3, 4
+
+    def finalize_test(test, pert):
+        h, j, d = pert[0], pert[1], pert[2]
+        t00 = test == T_00
+        tc0 = test == T_C0
+        t0x = test == T_0X
+        tcx = test == T_CX
+        d = d + jnp.where((tc0 & (j == 0)) | (t0x & (h == 0)) | tcx, 1, 0)
+        h_n = jnp.where((t00 | tc0) & (h == 0), 1, jnp.where((t0x | tcx) & (h == 0) & (d >= o.degen_iters_max), 2, h))
+        j_n = jnp.where((t00 | t0x) & (j == 0), 1, jnp.where((tc0 | tcx) & (j == 0) & (d >= o.degen_iters_max), 2, j))
+        # IPOPT decides both at once on the plain trial when both are undetermined
+        j_n = jnp.where(t00 & (h == 0) & (j == 0), 1, j_n)
+        return jnp.stack([h_n, j_n, d]).astype(jnp.int32)
+
+    def inertia_corrected_factor(P, rr, Wvals, jac, sig_x, sig_s, sig_p, sig_n, dw_last, mu, pert):
+        """Algorithm IC (Sec. 3.1) with IPOPT's rules: the smallest delta_w giving inertia (n, m, 0),
+        delta_c = jacobian_regularization_value mu^kappa_c when K is singular; all trial
+        factorisations share one traced factorisation inside a while_loop."""
+        delta_cd = o.jacobian_regularization_value * mu ** o.jacobian_regularization_exponent
+
+        def wrong_inertia_dw(dw):
+            first = jnp.where(dw_last == 0.0, o.first_hessian_perturbation,
+                              jnp.maximum(o.min_hessian_perturbation, o.perturb_dec_fact * dw_last))
+            big = (dw_last == 0.0) | (1e5 * dw_last < dw)
+            return jnp.where(dw == 0.0, first, jnp.where(big, o.perturb_inc_fact_first, o.perturb_inc_fact) * dw)
+
         S_, nb = st.S, st.nb
         base = assemble_base(P, Wvals, jac)
         z3 = jnp.zeros((S_, nb, nb))
-        fac0 = kkt.Factor(z3, jnp.zeros((S_, st.b_rows.size, nb)), jnp.zeros((), jnp.int64), jnp.zeros((), jnp.int64), jnp.zeros((), jnp.int64),
-                          jnp.ones((S_, nb)))
-        zero = jnp.zeros(())
+        i0 = jnp.zeros((), jnp.int64)
+        fac0 = kkt.Factor(z3, jnp.zeros((S_, st.b_rows.size, nb)), i0, i0, i0, jnp.ones((S_, nb)))
+        sigs = (sig_x, sig_s, sig_p, sig_n)
+        undetermined0 = (pert[0] == 0) | (pert[1] == 0)
+        test0 = jnp.where(undetermined0, T_00, T_NONE)
+        dc0 = jnp.where(pert[1] == 2, delta_cd, 0.0)
+        dw0 = jnp.where(pert[0] == 2, wrong_inertia_dw(0.0), 0.0)
 
         def cond(c):
             ok, dw, dc, t = c[:4]
             return (~ok) & (dw <= o.max_hessian_perturbation) & (t < o.max_inertia_trials)
 
         def body(c):
-            _, dw, dc, t = c[:4]
-            A_, B_, fac_, inv_s_ = factorize(P, Wvals, jac, sig_x, sig_s, dw, dc, base=base)
+            _, dw, dc, t, test, pert_ = c[:6]
+            A_, B_, fac_, invs_ = factorize(P, rr, Wvals, jac, sigs, dw, dc, base=base)
             fac_ = fac_._replace(npos=fac_.npos.astype(jnp.int64), nneg=fac_.nneg.astype(jnp.int64),
                                  nzero=fac_.nzero.astype(jnp.int64))
             ok = kkt.inertia_ok(st, fac_)
-            first = (t == 0) & ~skip_zero
-            new_dc = (dc == 0.0) & (fac_.nzero > 0)
-            dc_n = jnp.where(new_dc, o.jacobian_regularization_value * mu ** o.jacobian_regularization_exponent, dc)
-            # a singular K first gets delta_c > 0 at the same delta_w (IC-3); otherwise IC-4 / IC-6
-            dw_n = jnp.where(ok, dw, jnp.where(first, dw1, jnp.where(new_dc & (dw > 0), dw, inc * dw)))
-            dc_n = jnp.where(ok, dc, dc_n)
-            return ok, dw_n, dc_n, t + 1, A_, B_, fac_, inv_s_
+            singular = (~ok) & (fac_.nzero > 0)
+            wrong = (~ok) & ~singular
+            # wrong inertia: the test is decided (PerturbForWrongInertia), delta_w grows
+            pert_ = jnp.where(wrong, finalize_test(test, pert_), pert_)
+            undetermined = (pert_[0] == 0) | (pert_[1] == 0)
+            # singular K (PerturbForSingularity): walk the test pattern while undetermined,
+            # otherwise delta_c first, then delta_w
+            s_dc = jnp.where(undetermined,
+                             jnp.where(test == T_00, jnp.where(pert_[1] == 0, delta_cd, dc),
+                                       jnp.where(test == T_C0, 0.0, jnp.where(test == T_0X, delta_cd, dc))),
+                             jnp.where(dc > 0, dc, delta_cd))
+            s_dw_grow = jnp.where(undetermined, ~((test == T_00) & (pert_[1] == 0)), dc > 0)
+            s_test = jnp.where(undetermined,
+                               jnp.where(test == T_00, jnp.where(pert_[1] == 0, T_C0, T_0X),
+                                         jnp.where(test == T_C0, T_0X, T_CX)), T_NONE)
+            dw_n = jnp.where(ok, dw, jnp.where(wrong | (singular & s_dw_grow), wrong_inertia_dw(dw), dw))
+            dc_n = jnp.where(singular, s_dc, dc)
+            test_n = jnp.where(ok, test, jnp.where(singular, s_test, T_NONE))
+            return ok, dw_n, dc_n, t + 1, test_n, pert_, A_, B_, fac_, invs_
 
-        ok, dw, dc, trials, A, B, fac, inv_s = lax.while_loop(
-            cond, body, (jnp.zeros((), bool), jnp.where(skip_zero, dw1, 0.0),
-                         jnp.where(jac_degen, o.jacobian_regularization_value * mu ** o.jacobian_regularization_exponent, 0.0),
-                         jnp.zeros((), jnp.int32),
-                         z3, z3, fac0, jnp.zeros(m)))
+        zm = jnp.zeros(m)
+        ok, dw, dc, trials, test, pert, A, B, fac, invs = lax.while_loop(
+            cond, body, (jnp.zeros((), bool), dw0, dc0, jnp.zeros((), jnp.int32), jnp.asarray(test0, jnp.int32),
+                         pert, z3, z3, fac0, (zm, zm, zm)))
+        pert = jnp.where(ok, finalize_test(test, pert), pert)
         new_dw_last = jnp.where(ok & (dw > 0), dw, dw_last)
-        return A, B, fac, inv_s, ok, dw, dc, new_dw_last, trials
+        return A, B, fac, invs, ok, dw, dc, new_dw_last, trials, pert
 
     # ---------------------------------------------------------------- least-squares multipliers
     def ls_multipliers(P, it, ev):
@@ -376,153 +470,140 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         return S._replace(filt_theta=jnp.full(o.filter_size, jnp.inf),
                           filt_phi=jnp.full(o.filter_size, jnp.inf), filt_n=jnp.zeros((), jnp.int32))
 
-    def trial_eval(P, x, s, mu):
+    # ---------------------------------------------------------------- merit of the current mode
+    def merit(P, R, f, g, x, s, pv, nv, mu):
+        """(theta, phi) of the problem being solved: the barrier problem (3), or in the
+        restoration phase theta = ||c(x, s) - p + n||_1 and phi = the barrier function of
+        rho sum(p + n) + eta/2 ||D_R (x - x_R)||^2 (bounds of x, s, p, n)."""
+        rr = R.on & ~P.free
+        theta = jnp.sum(jnp.abs(constr_resid(P, g, s) + jnp.where(rr, nv - pv, 0.0)))
+        eta = o.resto_proximity_weight * jnp.sqrt(mu)
+        f_r = (o.resto_penalty_parameter * jnp.sum(jnp.where(rr, pv + nv, 0.0))
+               + 0.5 * eta * jnp.sum(R.dr * (x - R.xR) ** 2))
+        pn = jnp.where(rr, pv, 1.0), jnp.where(rr, nv, 1.0)
+        bar_pn = jnp.sum(jnp.where(rr, -mu * (jnp.log(pn[0]) + jnp.log(pn[1])) + KAPPA_D * mu * (pn[0] + pn[1]), 0.0))
+        phi = barrier_phi(P, jnp.where(R.on, f_r, f), x, s, mu) + bar_pn
+        return theta, phi
+
+    def trial_eval(P, R, x, s, pv, nv, mu):
         f, g = evaluate(P, x)
         s = jnp.where(P.free, g, s)
-        theta = theta_of(P, g, s)
-        phi = barrier_phi(P, f, x, s, mu)
+        theta, phi = merit(P, R, f, g, x, s, pv, nv, mu)
         finite = jnp.isfinite(f) & jnp.all(jnp.isfinite(g)) & jnp.isfinite(phi)
         return f, g, s, jnp.where(finite, theta, jnp.inf), jnp.where(finite, phi, jnp.inf)
 
-    # ---------------------------------------------------------------- restoration phase
-    def _restoration(P, S, mu, active):
-        """Simplified feasibility restoration (replaces Sec. 3.3's restoration NLP).
+    # ---------------------------------------------------------------- restoration phase (Sec. 3.3)
+    def enter_restoration(P, S, mu, theta_k, phi_k):
+        """Start the l1 restoration problem at the current x, s (IPOPT's initialisation: p, n
+        from (33) so that c - p + n = 0, their multipliers mu_R/p, mu_R/n, y = 0, bound
+        multipliers min(rho, z), mu_R = max(mu, ||c||_inf), a fresh filter). The outer filter
+        (already holding the current iterate) and regularisation are stashed for the return."""
+        it = S.it
+        rows = ~P.free
+        rho = o.resto_penalty_parameter
+        c0 = jnp.where(rows, constr_resid(P, S.ev.g, it.s), 0.0)
+        inf0 = jnp.max(jnp.abs(c0), initial=0.0)
+        mu_r = jnp.maximum(mu, inf0)
+        a = mu_r / (2.0 * rho) - 0.5 * c0
+        nv = a + jnp.sqrt(a * a + c0 * mu_r / (2.0 * rho))
+        pv = c0 + nv
+        nv, pv = jnp.where(rows, nv, 1.0), jnp.where(rows, pv, 1.0)
+        R = Resto(on=jnp.ones((), bool), fresh=jnp.ones((), bool), p=pv, n=nv, zp=jnp.where(rows, mu_r / pv, 0.0),
+                  zn=jnp.where(rows, mu_r / nv, 0.0), xR=it.x,
+                  dr=jnp.where(P.fixed, 0.0, 1.0 / jnp.maximum(1.0, jnp.abs(it.x)) ** 2),
+                  s0=it.s, z0=(it.zl, it.zu, it.vl, it.vu), mu_orig=mu, theta_ref=theta_k, phi_ref=phi_k,
+                  inf_ref=inf0, filt_theta=S.filt_theta, filt_phi=S.filt_phi, filt_n=S.filt_n,
+                  theta_min=S.theta_min, theta_max=S.theta_max, dw_last=S.dw_last, pert=S.pert)
+        it_r = Iterate(it.x, it.s, jnp.zeros(m), jnp.minimum(rho, it.zl), jnp.minimum(rho, it.zu),
+                       jnp.minimum(rho, it.vl), jnp.minimum(rho, it.vu))
+        S = filter_reset(S)
+        return S._replace(it=it_r, rs=R, mu=mu_r, theta_max=o.resto_theta_max_fact * jnp.ones(()),
+                          theta_min=o.theta_min_fact * jnp.ones(()), dw_last=jnp.zeros(()),
+                          pert=jnp.zeros(3, jnp.int32), n_acceptable=jnp.zeros((), jnp.int32))
 
-        Damped Gauss-Newton (Levenberg-Marquardt) steps on psi = 1/2 ||c(x, s)||_2^2 + mu_R B(x, s)
-        with B the log barriers of the bounds, fraction to the boundary, and an Armijo
-        backtracking on psi. The reduced system has the same block structure as (13) with
-        W = 0, delta_w = zeta (damping), delta_c = 1, so it is quasi-definite. Returns when
-        theta <= kappa_resto theta_k and the point is acceptable to the filter (success), when
-        theta stalls at a non-zero value (local infeasibility) or after max_resto_iter.
-        """
-        it0 = S.it
-        theta0 = theta_of(P, S.ev.g, it0.s)
-        # barrier weight starts at max(mu, 0.1 min(1, ||c||_inf)) and is reduced by 5 per iteration
-        th_inf0 = jnp.max(jnp.abs(constr_resid(P, S.ev.g, it0.s)), initial=0.0)
-        mu_r0 = jnp.maximum(mu, 1e-1 * jnp.minimum(1.0, th_inf0))
+    def restoration_done(P, R, f, g, x, s):
+        """IPOPT's return test: the original infeasibility reduced by kappa_resto and the point
+        acceptable to the outer filter and to the iterate where the restoration started."""
+        c = constr_resid(P, g, s)
+        inf = jnp.max(jnp.abs(c), initial=0.0)
+        theta = jnp.sum(jnp.abs(c))
+        phi = barrier_phi(P, f, x, s, R.mu_orig)
+        blocked = (theta >= R.filt_theta) & (phi >= R.filt_phi)
+        in_filter = (theta <= R.theta_max) & ~jnp.any(blocked) & jnp.isfinite(phi)
+        progress = (theta <= (1 - o.gamma_theta) * R.theta_ref) | (phi <= R.phi_ref - o.gamma_phi * R.theta_ref)
+        enough = inf <= jnp.maximum(o.kappa_resto * R.inf_ref, jnp.minimum(o.tol, o.constr_viol_tol))
+        return enough & in_filter & progress
 
-        class RS(NamedTuple):
-            x: jax.Array
-            s: jax.Array
-            f: jax.Array
-            g: jax.Array
-            mu_r: jax.Array
-            zeta: jax.Array
-            j: jax.Array
-            stall: jax.Array
-            code: jax.Array     # 0 running, 1 success, 4 infeasible, 5 failed
-
-        def psi(x, s, g, mu_r):
-            c = constr_resid(P, g, s)
-            zero_f = jnp.zeros(())
-            return 0.5 * jnp.sum(c * c) + (barrier_phi(P, zero_f, x, s, mu_r))
-
-        def body(R):
-            x, s = R.x, R.s
-            _, jac = derivs(P, x)
-            c = constr_resid(P, R.g, s)
-            dxl, dxu, dsl, dsu = slacks(P, x, s)
-            sig_x = jnp.where(P.hxl, R.mu_r / dxl ** 2, 0.0) + jnp.where(P.hxu, R.mu_r / dxu ** 2, 0.0)
-            sig_s = jnp.where(P.hsl, R.mu_r / dsl ** 2, 0.0) + jnp.where(P.hsu, R.mu_r / dsu ** 2, 0.0)
-            zeta = R.zeta
-            gbx, gbs = barrier_grad(P, jnp.zeros(n), x, s, R.mu_r)
-            A, B, fac, inv_s = factorize(P, jnp.zeros(hr.size), jac, sig_x, sig_s, zeta, 1.0, fast=False)
-            dx, ds, _ = solve_reduced(P, A, B, fac, inv_s, gbx, gbs, c)
-            ds = jnp.where(P.eq | P.free, 0.0, ds)
-            amax = frac_to_boundary(P, x, s, dx, ds, 0.99)
-            psi0 = psi(x, s, R.g, R.mu_r)
-            # directional derivative of psi along (dx, ds)
-            dpsi = (jnp.dot(jt_mult(jac, c) + gbx, dx) + jnp.dot(jnp.where(P.eq | P.free, 0.0, -c) + gbs, ds))
-
-            def ls_cond(L):
-                return (~L[1]) & (L[2] < 30)
-
-            def ls_body(L):
-                a, _, t, _ = L
-                xt, st_ = x + a * dx, s + a * ds
-                ft, gt = evaluate(P, xt)
-                pt = psi(xt, st_, gt, R.mu_r)
-                ok = jnp.isfinite(pt) & (pt <= psi0 + 1e-4 * a * jnp.minimum(dpsi, 0.0))
-                return jnp.where(ok, a, 0.5 * a), ok, t + 1, (ft, gt)
-
-            a, ok, _, (ft, gt) = lax.while_loop(ls_cond, ls_body, (amax, jnp.zeros((), bool), jnp.zeros((), jnp.int32), (R.f, R.g)))
-            xn = jnp.where(ok, x + a * dx, x)
-            sn = jnp.where(ok, s + a * ds, s)
-            fn = jnp.where(ok, ft, R.f)
-            gn = jnp.where(ok, gt, R.g)
-            sn = jnp.where(P.free, gn, jnp.where(P.eq, P.gl, sn))
-            th_new = theta_of(P, gn, sn)
-            th_old = theta_of(P, R.g, s)
-            phi_new = barrier_phi(P, fn, xn, sn, mu)
-            success = (th_new <= o.kappa_resto * theta0) & filter_ok(S, th_new, phi_new)
-            progress = th_old - th_new > 1e-6 * jnp.maximum(th_old, EPS)
-            stall = jnp.where(progress | (R.mu_r > 10 * o.tol), 0, R.stall + 1)
-            # local infeasibility: no progress and a stationary point of 1/2 ||c||^2 over the
-            # bounds (projected gradient small relative to ||c||)
-            gx = jnp.where(P.fixed, 0.0, jt_mult(jac, c))
-            gs = jnp.where(P.hsl | P.hsu, -c, 0.0)
-
-            def near(d, b):
-                return d <= 1e-5 * jnp.maximum(1.0, jnp.abs(jnp.where(jnp.isfinite(b), b, 0.0)))
-
-            pgx = jnp.where((P.hxl & near(dxl, P.xl) & (gx > 0)) | (P.hxu & near(dxu, P.xu) & (gx < 0)), 0.0, gx)
-            pgs = jnp.where((P.hsl & near(dsl, P.gl) & (gs > 0)) | (P.hsu & near(dsu, P.gu) & (gs < 0)), 0.0, gs)
-            pg = jnp.maximum(jnp.max(jnp.abs(pgx), initial=0.0), jnp.max(jnp.abs(pgs), initial=0.0))
-            stationary = pg <= 1e-4 * jnp.maximum(jnp.max(jnp.abs(c), initial=0.0), 1e-300)
-            infeasible = (stall >= 5) & stationary & (th_new > 0.0)
-            # Levenberg-Marquardt update of the damping: relax after full steps, stiffen after cuts
-            zeta_n = jnp.clip(jnp.where(ok & (a >= 0.99 * amax), 0.25 * zeta, zeta * jnp.minimum(100.0, 2.0 / a)),
-                              1e-10, 1e10)
-            j = R.j + 1
-            code = jnp.where(success, 1, jnp.where(infeasible, 4, jnp.where(j >= o.max_resto_iter, 5, 0)))
-            mu_r = jnp.maximum(0.2 * R.mu_r, o.tol / 10)
-            return RS(xn, sn, fn, gn, mu_r, zeta_n, j, stall.astype(jnp.int32), code.astype(jnp.int32))
-
-        R0 = RS(it0.x, it0.s, S.ev.f, S.ev.g, mu_r0, jnp.asarray(1e-4), jnp.zeros((), jnp.int32), jnp.zeros((), jnp.int32),
-                jnp.where(active, 0, 1).astype(jnp.int32))
-        R = lax.while_loop(lambda R: R.code == 0, body, R0)
-        return R
+    def leave_restoration(P, S):
+        """Back to the original problem at the restoration's x, s: the bound multipliers take one
+        Newton step for complementarity, as if the whole restoration had been one primal step
+        (reset to 1 if any exceeds bound_mult_reset_threshold), and y = 0 (IPOPT's defaults)."""
+        R, it = S.rs, S.it
+        mu = R.mu_orig
+        tau = jnp.maximum(o.tau_min, 1.0 - mu)
+        old = slacks(P, R.xR, R.s0)
+        new = slacks(P, it.x, it.s)
+        masks = (P.hxl, P.hxu, P.hsl, P.hsu)
+        dz = [jnp.where(msk, ((a - b) * z + mu) / a - z, 0.0) for z, a, b, msk in zip(R.z0, old, new, masks)]
+        a_du = jnp.min(jnp.stack([frac_dual(z, d, msk, tau) for z, d, msk in zip(R.z0, dz, masks)]))
+        z = [z0 + a_du * d for z0, d in zip(R.z0, dz)]
+        too_big = jnp.max(jnp.stack([jnp.max(jnp.abs(v), initial=0.0) for v in z])) > o.bound_mult_reset_threshold
+        z = [jnp.where(too_big, jnp.where(msk, 1.0, 0.0), v) for v, msk in zip(z, masks)]
+        it_o = Iterate(it.x, it.s, jnp.zeros(m), *z)
+        return S._replace(it=it_o, rs=resto_off(R), mu=mu, filt_theta=R.filt_theta, filt_phi=R.filt_phi,
+                          filt_n=R.filt_n, theta_min=R.theta_min, theta_max=R.theta_max, dw_last=R.dw_last,
+                          pert=R.pert, n_acceptable=jnp.zeros((), jnp.int32))
 
     # ---------------------------------------------------------------- one IPM iteration
     def iteration(P, S):
-        it, ev = S.it, S.ev
-        # A-3: barrier parameter update (7), possibly several times
+        it, ev, R = S.it, S.ev, S.rs
+        resto = R.on
+        rr = resto & ~P.free
+        rho = o.resto_penalty_parameter
+
+        # A-3: barrier parameter update (7), possibly several times; not in the first iteration
+        # of a restoration phase (IPOPT)
+        mu_min = jnp.minimum(o.tol, o.compl_inf_tol * P.sf) / (o.kappa_eps + 1.0)
+
         def mu_cond(c):
             mu, cnt, force = c
-            return ((emu_only(P, it, ev, mu) <= o.kappa_eps * mu) | force) & (mu > o.tol / 10 + 1e-300) & (cnt < 20)
+            return (((errors(P, it, ev, mu, R)["Emu"] <= o.kappa_eps * mu) | force) & (mu > mu_min * (1 + 1e-12))
+                    & (cnt < 20) & ~R.fresh)
 
         def mu_body(c):
             mu, cnt, _ = c
-            return jnp.maximum(o.tol / 10, jnp.minimum(o.kappa_mu * mu, mu ** o.theta_mu)), cnt + 1, jnp.zeros((), bool)
+            return jnp.maximum(mu_min, jnp.minimum(o.kappa_mu * mu, mu ** o.theta_mu)), cnt + 1, jnp.zeros((), bool)
 
-        mu, nupd, _ = lax.while_loop(mu_cond, mu_body, (S.mu, jnp.zeros((), jnp.int32), S.tiny_count > 0))
+        mu, nupd, _ = lax.while_loop(mu_cond, mu_body, (S.mu, jnp.zeros((), jnp.int32), (S.tiny_count > 0) & ~resto))
         S = lax.cond(nupd > 0, filter_reset, lambda s_: s_, S)
         tau = jnp.maximum(o.tau_min, 1.0 - mu)
 
-        # A-4: search direction with inertia correction
-        Wvals = hessian(P, it.x, it.y)
+        # A-4: search direction with inertia correction; in the restoration phase the Hessian
+        # is the constraints' part plus the proximity term eta * diag(dr)
+        Wvals = nlp.hess_values(it.x, P.sg * it.y, jnp.where(resto, 0.0, P.sf), P.p)
         sig_x, sig_s = sigmas(P, it)
-        skip_zero = S.n_perturbed >= o.degen_iters_max
-        jac_degen = S.n_dc >= o.degen_iters_max
-        A, B, fac, inv_s, ok_step, dw, dc, dw_last, n_fact = inertia_corrected_factor(
-            P, Wvals, ev.jac, sig_x, sig_s, S.dw_last, mu, skip_zero, jac_degen)
-        n_perturbed = jnp.where(dw > 0, S.n_perturbed + 1, 0).astype(jnp.int32)
-        n_dc = jnp.where(dc > 0, S.n_dc + 1, 0).astype(jnp.int32)
-        gx, gs = barrier_grad(P, ev.grad, it.x, it.s, mu)
+        prox = jnp.where(resto, o.resto_proximity_weight * jnp.sqrt(mu) * R.dr, 0.0)
+        sig_p = jnp.where(rr, R.zp / R.p, 0.0)
+        sig_n = jnp.where(rr, R.zn / R.n, 0.0)
+        A, B, fac, invs, ok_step, dw, dc, dw_last, n_fact, pert = inertia_corrected_factor(
+            P, rr, Wvals, ev.jac, sig_x + prox, sig_s, sig_p, sig_n, S.dw_last, mu, S.pert)
+        gx, gs = barrier_grad(P, jnp.where(resto, prox * (it.x - R.xR), ev.grad), it.x, it.s, mu)
+        gp = jnp.where(rr, rho - mu / R.p + KAPPA_D * mu, 0.0)
+        gn = jnp.where(rr, rho - mu / R.n + KAPPA_D * mu, 0.0)
         rx = gx + jt_mult(ev.jac, it.y)
         rs = jnp.where(P.hsl | P.hsu, gs - it.y, 0.0)
-        c = constr_resid(P, ev.g, it.s)
-        dx, ds, dy = solve_reduced(P, A, B, fac, inv_s, rx, rs, c)
-        ds = jnp.where(P.eq | P.free, 0.0, ds)
-        dy = jnp.where(P.free, 0.0, dy)
+        rp = jnp.where(rr, gp - it.y, 0.0)
+        rn = jnp.where(rr, gn + it.y, 0.0)
+        c = constr_resid(P, ev.g, it.s) + jnp.where(rr, R.n - R.p, 0.0)
+        dx, ds, dy, dp, dn, res_ratio = solve_reduced(P, A, B, fac, invs, rx, rs, rp, rn, c)
         finite_step = jnp.all(jnp.isfinite(dx)) & jnp.all(jnp.isfinite(dy))
         ok_step = ok_step & finite_step
 
         # A-5: filter line search
-        theta_k = theta_of(P, ev.g, it.s)
-        phi_k = barrier_phi(P, ev.f, it.x, it.s, mu)
-        gd = jnp.dot(gx, dx) + jnp.dot(gs, ds)
-        amax = frac_to_boundary(P, it.x, it.s, dx, ds, tau)
+        theta_k, phi_k = merit(P, R, ev.f, ev.g, it.x, it.s, R.p, R.n, mu)
+        gd = jnp.dot(gx, dx) + jnp.dot(gs, ds) + jnp.dot(gp, dp) + jnp.dot(gn, dn)
+        amax = jnp.minimum(frac_to_boundary(P, it.x, it.s, dx, ds, tau),
+                           jnp.minimum(frac_dual(R.p, dp, rr, tau), frac_dual(R.n, dn, rr, tau)))
         gd_neg = gd < 0
         mgd = jnp.where(gd_neg, -gd, 1.0)
         a_min = o.alpha_min_frac * jnp.where(
@@ -536,16 +617,22 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
             return gd_neg & (a * mgd ** o.s_phi > o.delta * theta_k ** o.s_theta)
 
         def acceptable(a, theta_t, phi_t):
-            ftype = (theta_k <= S.theta_min) & switching(a)
+            """(accepted, filter not augmented): the Armijo test applies when theta_k <= theta_min
+            and the switching condition (19) holds; as in IPOPT's implementation, the filter is
+            left alone whenever the switching condition and Armijo hold, whatever theta_k."""
+            sw = switching(a)
             armijo = phi_t <= phi_k + o.eta_phi * a * gd
             suff = (theta_t <= (1 - o.gamma_theta) * theta_k) | (phi_t <= phi_k - o.gamma_phi * theta_k)
-            return filter_ok(S, theta_t, phi_t) & jnp.where(ftype, armijo, suff), ftype & armijo
+            return filter_ok(S, theta_t, phi_t) & jnp.where((theta_k <= S.theta_min) & sw, armijo, suff), sw & armijo
 
         tiny = jnp.max(jnp.abs(dx) / (1.0 + jnp.abs(it.x)), initial=0.0) < 10 * EPS
-        tiny = tiny & (jnp.max(jnp.abs(ds) / (1.0 + jnp.abs(it.s)), initial=0.0) < 10 * EPS) & ok_step
+        tiny = tiny & (jnp.max(jnp.abs(ds) / (1.0 + jnp.abs(it.s)), initial=0.0) < 10 * EPS) & ok_step & ~resto
+
+        def trial(a, dx_, ds_, dp_, dn_):
+            return trial_eval(P, R, it.x + a * dx_, it.s + a * ds_, R.p + a * dp_, R.n + a * dn_, mu)
 
         # first trial at alpha_max
-        f1, g1, s1, th1, ph1 = trial_eval(P, it.x + amax * dx, it.s + amax * ds, mu)
+        f1, g1, s1, th1, ph1 = trial(amax, dx, ds, dp, dn)
         acc1, ft1 = acceptable(amax, th1, ph1)
         acc1 = acc1 | tiny
 
@@ -558,27 +645,28 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
             acc: jax.Array
             ftype: jax.Array
             a: jax.Array
-            dx: jax.Array
-            ds: jax.Array
-            dy: jax.Array
+            d: tuple
             f: jax.Array
             g: jax.Array
             s: jax.Array
 
-        c1 = constr_resid(P, g1, s1)
-        soc0 = SOC(jnp.zeros((), jnp.int32), amax * c + c1, th1, (~acc1) & (th1 >= theta_k) & ok_step & (o.max_soc > 0),
-                   jnp.zeros((), bool), jnp.zeros((), bool), amax, dx, ds, dy, f1, g1, s1)
+        def resid_r(g_, s_, a_):
+            return constr_resid(P, g_, s_) + jnp.where(rr, (R.n + a_ * dn) - (R.p + a_ * dp), 0.0)
+
+        soc0 = SOC(jnp.zeros((), jnp.int32), amax * c + resid_r(g1, s1, amax), th1,
+                   (~acc1) & (th1 >= theta_k) & ok_step & (o.max_soc > 0),
+                   jnp.zeros((), bool), jnp.zeros((), bool), amax, (dx, ds, dy, dp, dn), f1, g1, s1)
 
         def soc_body(Q):
-            dxs, dss, dys = solve_reduced(P, A, B, fac, inv_s, rx, rs, Q.csoc)
-            dss = jnp.where(P.eq | P.free, 0.0, dss)
-            a_s = frac_to_boundary(P, it.x, it.s, dxs, dss, tau)
-            ft, gt, stt, tht, pht = trial_eval(P, it.x + a_s * dxs, it.s + a_s * dss, mu)
+            d_s = solve_reduced(P, A, B, fac, invs, rx, rs, rp, rn, Q.csoc)[:5]
+            a_s = jnp.minimum(frac_to_boundary(P, it.x, it.s, d_s[0], d_s[1], tau),
+                              jnp.minimum(frac_dual(R.p, d_s[3], rr, tau), frac_dual(R.n, d_s[4], rr, tau)))
+            ft, gt, stt, tht, pht = trial(a_s, d_s[0], d_s[1], d_s[3], d_s[4])
             acc, ftype = acceptable(amax, tht, pht)
             p = Q.p + 1
             cont = (~acc) & (p < o.max_soc) & (tht <= o.kappa_soc * Q.theta_old)
-            csoc = a_s * Q.csoc + constr_resid(P, gt, stt)
-            return SOC(p, csoc, tht, cont, acc, ftype, a_s, dxs, dss, dys, ft, gt, stt)
+            csoc = a_s * Q.csoc + constr_resid(P, gt, stt) + jnp.where(rr, (R.n + a_s * d_s[4]) - (R.p + a_s * d_s[3]), 0.0)
+            return SOC(p, csoc, tht, cont, acc, ftype, a_s, d_s, ft, gt, stt)
 
         soc = lax.while_loop(lambda Q: Q.active, soc_body, soc0)
 
@@ -601,7 +689,7 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
             return start_bt & (~L.acc) & (~L.fail)
 
         def ls_body(L):
-            ft, gt, stt, tht, pht = trial_eval(P, it.x + L.a * dx, it.s + L.a * ds, mu)
+            ft, gt, stt, tht, pht = trial(L.a, dx, ds, dp, dn)
             acc, ftype = acceptable(L.a, tht, pht)
             a_next = 0.5 * L.a
             fail = (~acc) & ((a_next < a_min) | (L.t + 1 >= o.max_ls_trials))
@@ -615,103 +703,104 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         accepted = ok_step & (acc1 | soc.acc | ls.acc)
         a_pr = jnp.where(acc1, amax, jnp.where(use_soc, soc.a, ls.a))
         ftype = jnp.where(acc1, ft1, jnp.where(use_soc, soc.ftype, ls.ftype)) | tiny
-        DX = jnp.where(use_soc, soc.dx, dx)
-        DS = jnp.where(use_soc, soc.ds, ds)
-        DY = jnp.where(use_soc, soc.dy, dy)
+        DX, DS, DY, DP, DN = (jnp.where(use_soc, a_, b_) for a_, b_ in zip(soc.d, (dx, ds, dy, dp, dn)))
         f_new = jnp.where(acc1, f1, jnp.where(use_soc, soc.f, ls.f))
         g_new = jnp.where(acc1, g1, jnp.where(use_soc, soc.g, ls.g))
         n_trials = 1 + soc.p + jnp.where(use_bt | (~accepted), ls.t - 1, 0)
 
         dzl, dzu, dvl, dvu = dual_steps(P, it, DX, DS, mu)
-        a_du = jnp.minimum(jnp.minimum(frac_dual(it.zl, dzl, P.hxl, tau), frac_dual(it.zu, dzu, P.hxu, tau)),
-                           jnp.minimum(frac_dual(it.vl, dvl, P.hsl, tau), frac_dual(it.vu, dvu, P.hsu, tau)))
+        dzp = jnp.where(rr, (mu - R.zp * R.p - R.zp * DP) / R.p, 0.0)
+        dzn = jnp.where(rr, (mu - R.zn * R.n - R.zn * DN) / R.n, 0.0)
+        a_du = jnp.min(jnp.stack([frac_dual(it.zl, dzl, P.hxl, tau), frac_dual(it.zu, dzu, P.hxu, tau),
+                                  frac_dual(it.vl, dvl, P.hsl, tau), frac_dual(it.vu, dvu, P.hsu, tau),
+                                  frac_dual(R.zp, dzp, rr, tau), frac_dual(R.zn, dzn, rr, tau)]))
         x_n = it.x + a_pr * DX
         s_n = it.s + a_pr * DS
         s_n = jnp.where(P.free, g_new, jnp.where(P.eq, P.gl, s_n))
         y_n = it.y + a_pr * DY
         zl, zu, vl, vu = kappa_sigma_reset(P, x_n, s_n, it.zl + a_du * dzl, it.zu + a_du * dzu,
                                            it.vl + a_du * dvl, it.vu + a_du * dvu, mu)
-        S_acc = S
-        S_acc = lax.cond(ftype, lambda s_: s_, lambda s_: filter_add(s_, theta_k, phi_k), S_acc)
-        it_acc = Iterate(x_n, s_n, y_n, zl, zu, vl, vu)
+        p_n = jnp.where(rr, R.p + a_pr * DP, R.p)
+        n_n = jnp.where(rr, R.n + a_pr * DN, R.n)
+        R_acc = R._replace(fresh=jnp.zeros((), bool), p=p_n, n=n_n, zp=clip_mult(R.zp + a_du * dzp, p_n, rr, mu),
+                           zn=clip_mult(R.zn + a_du * dzn, n_n, rr, mu))
+        S_acc = lax.cond(ftype, lambda s_: s_, lambda s_: filter_add(s_, theta_k, phi_k), S)
+        S_acc = S_acc._replace(it=Iterate(x_n, s_n, y_n, zl, zu, vl, vu), rs=R_acc)
 
-        # restoration when the line search failed (A-5.5 / A-9); as IPOPT, a failed line search at
-        # an acceptable point stops there instead ("Solved_To_Acceptable_Level")
+        # a failed line search at an acceptable point stops there ("Solved_To_Acceptable_Level",
+        # as IPOPT); otherwise it starts the restoration phase (A-5.5 / A-9), which counts its
+        # iterations as IPOPT does. A failed line search inside the restoration phase ends it.
         ls_failed = ~accepted      # includes a failed inertia correction (IC-6)
-        stop_acceptable = ls_failed & S.cur_acc
-        need_resto = ls_failed & ~S.cur_acc
-        S_r = filter_add(S, theta_k, phi_k)
-
-        def do_resto(_):
-            R = _restoration(P, S_r, mu, need_resto)
-            return R.x, R.s, R.f, R.g, R.code, R.j
-
-        def no_resto(_):
-            return it.x, it.s, ev.f, ev.g, jnp.zeros((), jnp.int32), jnp.zeros((), jnp.int32)
-
-        rx_, rs_, rf_, rg_, rcode, rj = lax.cond(need_resto, do_resto, no_resto, None)
-        resto_ok = need_resto & (rcode == 1)
-
-        # assemble the next iterate
-        x_next = jnp.where(resto_ok, rx_, jnp.where(accepted, x_n, it.x))
-        s_next = jnp.where(resto_ok, rs_, jnp.where(accepted, s_n, it.s))
-        f_next = jnp.where(resto_ok, rf_, jnp.where(accepted, f_new, ev.f))
-        g_next = jnp.where(resto_ok, rg_, jnp.where(accepted, g_new, ev.g))
+        stop_acceptable = ls_failed & S.cur_acc & ~resto
+        start_resto = ls_failed & ~S.cur_acc & ~resto
+        resto_failed = ls_failed & resto
+        S_next = jax.tree.map(lambda a_, b_: jnp.where(accepted, a_, b_), S_acc, S)
+        S_next = lax.cond(start_resto, lambda s_: enter_restoration(P, filter_add(s_, theta_k, phi_k), mu, theta_k, phi_k),
+                          lambda s_: s_._replace(mu=mu), S_next)
+        back = accepted & resto & restoration_done(P, R, f_new, g_new, x_n, s_n)
+        S_next = lax.cond(back, lambda s_: leave_restoration(P, s_), lambda s_: s_, S_next)
+        x_next = S_next.it.x
+        f_next = jnp.where(accepted, f_new, ev.f)
+        g_next = jnp.where(accepted, g_new, ev.g)
         grad_n, jac_n = derivs(P, x_next)
         ev_next = Evals(f_next, g_next, grad_n, jac_n)
-        # after restoration: bound multipliers central, y by least squares (Sec. 3.6)
-        dxl, dxu, dsl, dsu = slacks(P, x_next, s_next)
-        zc = (jnp.where(P.hxl, mu / dxl, 0.0), jnp.where(P.hxu, mu / dxu, 0.0),
-              jnp.where(P.hsl, mu / dsl, 0.0), jnp.where(P.hsu, mu / dsu, 0.0))
-        it_r = Iterate(x_next, s_next, jnp.zeros(m), *zc)
-        it_r = it_r._replace(y=lax.cond(resto_ok, lambda: ls_multipliers(P, it_r, ev_next), lambda: jnp.zeros(m)))
-        it_next = jax.tree.map(lambda a_, b_: jnp.where(resto_ok, a_, b_), it_r, it_acc)
 
-        # a failed restoration (not local infeasibility) falls back to the last acceptable iterate
-        rollback = need_resto & ~resto_ok & (rcode != 4) & S.has_acc
-        it_next = jax.tree.map(lambda a_, b_: jnp.where(rollback, a_, b_), S.acc_it, it_next)
+        # a failed restoration falls back to the last acceptable iterate
+        rollback = resto_failed & S.has_acc
+        it_next = jax.tree.map(lambda a_, b_: jnp.where(rollback, a_, b_), S.acc_it, S_next.it)
         ev_next = jax.tree.map(lambda a_, b_: jnp.where(rollback, a_, b_), S.acc_ev, ev_next)
-        S_next = jax.tree.map(lambda a_, b_: jnp.where(resto_ok, a_, b_), S_r, S_acc)
         status = jnp.where(stop_acceptable | rollback, 2,
-                           jnp.where(need_resto & ~resto_ok,
-                                     jnp.where(rcode == 4, 4, jnp.where(ok_step, 5, 6)), 0)).astype(jnp.int32)
-        kind = jnp.where(resto_ok | need_resto, ord("r"),
+                           jnp.where(resto_failed, jnp.where(ok_step, 5, 6), 0)).astype(jnp.int32)
+        kind = jnp.where(start_resto, ord("R"),
                          jnp.where(tiny, ord("s"),
                                    jnp.where(use_soc, jnp.where(ftype, ord("F"), ord("H")),
                                              jnp.where(ftype, ord("f"), ord("h")))))
         tiny_count = jnp.where(tiny, S.tiny_count + 1, 0).astype(jnp.int32)
-        step_info = dict(mu=mu, d_norm=jnp.max(jnp.abs(DX), initial=0.0), reg=dw,
-                         alpha_du=jnp.where(accepted, a_du, 0.0), alpha_pr=jnp.where(accepted, a_pr, 0.0),
-                         ls=n_trials, kind=kind, resto_iters=S.resto_iters + rj, n_fact=n_fact)
-        S_next = S_next._replace(it=it_next, ev=ev_next, mu=mu, dw_last=dw_last, tiny_count=tiny_count,
-                                 n_perturbed=n_perturbed, n_dc=n_dc,
-                                 resto_iters=S.resto_iters + rj, k=S.k + 1)
+        # ||d|| as IPOPT's log: the primal step (x, s and, in the restoration phase, p and n)
+        d_norm = jnp.max(jnp.stack([jnp.max(jnp.abs(v), initial=0.0) for v in (DX, DS, DP, DN)]))
+        step_info = dict(mu=mu, d_norm=d_norm,
+                         reg=dw, alpha_du=jnp.where(accepted, a_du, 0.0), alpha_pr=jnp.where(accepted, a_pr, 0.0),
+                         ls=n_trials, kind=kind, resto_iters=S.resto_iters + resto.astype(jnp.int32),
+                         n_fact=n_fact, mode=resto.astype(jnp.int32), res_ratio=res_ratio)
+        S_next = S_next._replace(it=it_next, ev=ev_next, tiny_count=tiny_count,
+                                 resto_iters=S.resto_iters + resto.astype(jnp.int32), k=S.k + 1)
+        # the regularisation history belongs to the problem being solved (IPOPT's restoration
+        # phase has its own); entering and leaving the restoration set it themselves
+        upd = (~resto & ~start_resto) | (resto & S_next.rs.on)
+        S_next = S_next._replace(dw_last=jnp.where(upd, dw_last, S_next.dw_last),
+                                 pert=jnp.where(upd, pert, S_next.pert))
         return S_next, status, step_info
 
     # ---------------------------------------------------------------- termination + history
     def record_and_check(P, S, step_info, status):
-        err = errors(P, S.it, S.ev, S.mu)
+        err = errors(P, S.it, S.ev, S.mu, S.rs)
         k = S.k
+        resto = S.rs.on
         conv = ((err["E0"] <= o.tol) & (err["pr_u"] <= o.constr_viol_tol) & (err["du_u"] <= o.dual_inf_tol)
-                & (err["co_u"] <= o.compl_inf_tol))
+                & (err["co_u"] <= o.compl_inf_tol)) & ~resto
         acc_pt = ((err["E0"] <= o.acceptable_tol) & (err["pr_u"] <= o.acceptable_constr_viol_tol)
                   & (err["du_u"] <= o.acceptable_dual_inf_tol) & (err["co_u"] <= o.acceptable_compl_inf_tol))
         n_acc = jnp.where(acc_pt, S.n_acceptable + 1, 0).astype(jnp.int32)
+        # the restoration problem itself converged (or stalled at an acceptable point) without
+        # reaching a point the outer filter accepts: local infeasibility, unless it is feasible
+        resto_conv = resto & ((err["E0"] <= o.tol) | ((n_acc >= o.acceptable_iter) & (o.acceptable_iter > 0)))
+        resto_code = jnp.where(err["pr_s"] > 1e2 * o.tol, 4, 5)
         finite = jnp.isfinite(S.ev.f) & jnp.all(jnp.isfinite(S.ev.g)) & jnp.all(jnp.isfinite(S.ev.grad)) & jnp.all(jnp.isfinite(S.ev.jac))
-        tiny_stop = (S.tiny_count >= 2) & (S.mu <= o.tol / 10 * 1.0000001)
+        tiny_stop = (S.tiny_count >= 2) & (S.mu <= jnp.minimum(o.tol, o.compl_inf_tol * P.sf) / (o.kappa_eps + 1.0) * 1.0000001)
         new_status = jnp.where(
             status != 0, status,
             jnp.where(~finite, 7,
                       jnp.where(conv, 1,
-                                jnp.where((n_acc >= o.acceptable_iter) & (o.acceptable_iter > 0), 2,
-                                          jnp.where(tiny_stop, jnp.where(acc_pt, 2, 8),
-                                                    jnp.where(k >= o.max_iter, 3, 0))))))
+                                jnp.where(resto_conv, resto_code,
+                                          jnp.where((n_acc >= o.acceptable_iter) & (o.acceptable_iter > 0) & ~resto, 2,
+                                                    jnp.where(tiny_stop, jnp.where(acc_pt, 2, 8),
+                                                              jnp.where((k >= o.max_iter) | (S.resto_iters > o.max_resto_iter), 3, 0)))))))
         hist = S.hist
         if o.keep_history:
             row = dict(obj=S.ev.f / P.sf, inf_pr=err["pr_u"], inf_du=err["dual"], compl=err["compl"], **step_info)
             hist = {key: hist[key].at[k].set(jnp.asarray(row[key]).astype(hist[key].dtype)) for key in HIST_FIELDS}
         new_status = new_status.astype(jnp.int32)
-        keep = acc_pt & finite
+        keep = acc_pt & finite & ~resto
         acc_it = jax.tree.map(lambda a_, b_: jnp.where(keep, a_, b_), S.it, S.acc_it)
         acc_ev = jax.tree.map(lambda a_, b_: jnp.where(keep, a_, b_), S.ev, S.acc_ev)
         return S._replace(done=new_status != 0, status=new_status, n_acceptable=n_acc, hist=hist,
@@ -735,6 +824,16 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         hxu = jnp.isfinite(xu) & ~fixed
         hsl = jnp.isfinite(gl) & ~eq
         hsu = jnp.isfinite(gu) & ~eq
+        # IPOPT's bound_relax_factor: finite variable and inequality bounds are relaxed by
+        # factor * max(1, |bound|); like IPOPT 3.14 (honor_original_bounds = no) the final x is
+        # not projected back, which would break the stationarity of the returned multipliers
+        rf = o.bound_relax_factor
+
+        def relax(b, mask, sign):
+            return jnp.where(mask, b + sign * rf * jnp.maximum(1.0, jnp.abs(b)), b)
+
+        xl, xu = relax(xl, hxl, -1.0), relax(xu, hxu, 1.0)
+        gl, gu = relax(gl, hsl, -1.0), relax(gu, hsu, 1.0)
         free = ~eq & ~hsl & ~hsu
         x0 = jnp.where(fixed, xl, x0)
         # gradient-based scaling at the user's starting point (Sec. 3.8)
@@ -763,6 +862,11 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
                      jnp.where(hsl, bm, 0.0), jnp.where(hsu, bm, 0.0))
         it = it._replace(y=ls_multipliers(P, it, ev))
         theta0 = theta_of(P, g, s)
+        zm, zn_ = jnp.zeros(m), jnp.zeros(n)
+        z0 = jnp.zeros(())
+        resto0 = resto_off(Resto(z0 > 0, z0 > 0, zm, zm, zm, zm, zn_, zn_, zm, (zn_, zn_, zm, zm), z0, z0, z0, z0,
+                                 jnp.full(o.filter_size, jnp.inf), jnp.full(o.filter_size, jnp.inf),
+                                 jnp.zeros((), jnp.int32), z0, z0, z0, jnp.zeros(3, jnp.int32)))
         hist = {key: jnp.zeros(H if o.keep_history else 1, dtype=jnp.int32 if key in INT_FIELDS else float)
                 for key in HIST_FIELDS}
         S = State(it=it, ev=ev, mu=jnp.asarray(o.mu_init, float), k=jnp.zeros((), jnp.int32),
@@ -771,12 +875,13 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
                   filt_n=jnp.zeros((), jnp.int32),
                   theta_min=o.theta_min_fact * jnp.maximum(1.0, theta0),
                   theta_max=o.theta_max_fact * jnp.maximum(1.0, theta0),
-                  dw_last=jnp.zeros(()), n_perturbed=jnp.zeros((), jnp.int32), n_dc=jnp.zeros((), jnp.int32), n_acceptable=jnp.zeros((), jnp.int32), tiny_count=jnp.zeros((), jnp.int32),
-                  resto_iters=jnp.zeros((), jnp.int32), hist=hist,
+                  dw_last=jnp.zeros(()), pert=jnp.zeros(3, jnp.int32), n_acceptable=jnp.zeros((), jnp.int32), tiny_count=jnp.zeros((), jnp.int32),
+                  resto_iters=jnp.zeros((), jnp.int32), hist=hist, rs=resto0,
                   cur_acc=jnp.zeros((), bool), acc_it=it, acc_ev=ev, has_acc=jnp.zeros((), bool))
         info0 = dict(mu=S.mu, d_norm=jnp.zeros(()), reg=jnp.zeros(()), alpha_du=jnp.zeros(()),
                      alpha_pr=jnp.zeros(()), ls=jnp.zeros((), jnp.int32), kind=jnp.zeros((), jnp.int32),
-                     resto_iters=jnp.zeros((), jnp.int32), n_fact=jnp.zeros((), jnp.int32))
+                     resto_iters=jnp.zeros((), jnp.int32), n_fact=jnp.zeros((), jnp.int32),
+                     mode=jnp.zeros((), jnp.int32), res_ratio=jnp.zeros(()))
         S = record_and_check(P, S, info0, jnp.zeros((), jnp.int32))
 
         def body(S):

@@ -22,7 +22,7 @@ def format_log(history: dict, iterations: int, status: str, header: str | None =
     for k in range(int(iterations) + 1):
         kind = int(history["kind"][k])
         tag = chr(kind) if kind > 0 else " "
-        r = "r" if tag == "r" else " "
+        r = "r" if int(history["mode"][k]) else " "
         d = history["d_norm"][k]
         lines.append(
             f"{k:4d}{r} {history['obj'][k]: .7e} {history['inf_pr'][k]:.2e} {history['inf_du'][k]:.2e}"

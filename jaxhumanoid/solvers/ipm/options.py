@@ -34,6 +34,8 @@ class IPMOptions:
     kappa_mu: float = 0.2
     theta_mu: float = 1.5
     tau_min: float = 0.99
+    # variable and inequality bounds relaxed by this factor (IPOPT's default)
+    bound_relax_factor: float = 1e-8
     # initial point (Sec. 3.6)
     bound_push: float = 1e-2
     bound_frac: float = 1e-2
@@ -73,14 +75,18 @@ class IPMOptions:
     jacobian_regularization_value: float = 1e-8
     jacobian_regularization_exponent: float = 0.25
     max_inertia_trials: int = 60
-    degen_iters_max: int = 3        # consecutive perturbed iterations before the delta_w = 0 trial is skipped
+    degen_iters_max: int = 3        # IPOPT's degeneracy test: iterations before a part is declared degenerate
     # linear algebra: adaptive iterative refinement (IPOPT's names and defaults)
     min_refinement_steps: int = 1
     max_refinement_steps: int = 10
     residual_ratio_max: float = 1e-10
-    # feasibility restoration (Sec. 3.3, simplified: see algorithm.restoration)
-    max_resto_iter: int = 200
-    kappa_resto: float = 0.9
+    # feasibility restoration (Sec. 3.3): the l1 restoration problem (see algorithm.Resto)
+    max_resto_iter: int = 3000000
+    kappa_resto: float = 0.9                    # IPOPT's required_infeasibility_reduction
+    resto_penalty_parameter: float = 1000.0     # rho
+    resto_proximity_weight: float = 1.0         # eta = weight * sqrt(mu)
+    resto_theta_max_fact: float = 1e8           # IPOPT's resto.theta_max_fact
+    bound_mult_reset_threshold: float = 1000.0
     # output
     print_level: int = 0
     keep_history: bool = True
@@ -92,6 +98,7 @@ class IPMOptions:
         return dataclasses.replace(self, **kw)
 
 
+_NONNEG = ("bound_relax_factor",)
 _POSITIVE = (
     "tol", "s_max", "constr_viol_tol", "dual_inf_tol", "compl_inf_tol", "acceptable_tol",
     "acceptable_constr_viol_tol", "acceptable_dual_inf_tol", "acceptable_compl_inf_tol", "mu_init",
@@ -101,6 +108,7 @@ _POSITIVE = (
     "alpha_min_frac", "first_hessian_perturbation", "min_hessian_perturbation",
     "max_hessian_perturbation", "perturb_inc_fact_first", "perturb_inc_fact",
     "jacobian_regularization_value", "obj_scaling_factor", "residual_ratio_max",
+    "resto_penalty_parameter", "resto_proximity_weight", "resto_theta_max_fact", "bound_mult_reset_threshold",
 )
 _OPEN_UNIT = ("kappa_mu", "tau_min", "perturb_dec_fact", "kappa_soc", "kappa_resto")
 _NONNEG_INT = ("acceptable_iter", "max_soc", "min_refinement_steps", "max_refinement_steps", "print_level", "degen_iters_max")
@@ -114,6 +122,10 @@ def validate(o: IPMOptions) -> None:
         v = getattr(o, name)
         if not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
             raise ValueError(f"IPMOptions.{name} must be a finite number > 0, got {v!r}")
+    for name in _NONNEG:
+        v = getattr(o, name)
+        if not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
+            raise ValueError(f"IPMOptions.{name} must be a finite number >= 0, got {v!r}")
     for name in _OPEN_UNIT:
         v = getattr(o, name)
         if not isinstance(v, (int, float)) or not 0.0 < v < 1.0:
