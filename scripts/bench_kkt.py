@@ -10,18 +10,25 @@ points IPOPT passes through: the interpolated 2S warm start is solved by IPOPT w
 options, stopped after 3 and 30 iterations and run to the end; at each point the Hessian of the
 Lagrangian (IPOPT's multipliers) and the Jacobian are evaluated, and the barrier diagonals are
 formed as the IPM forms them (Sigma_x = z_l / (x - x_l) + z_u / (x_u - x), inequality rows
--1 / Sigma_s with Sigma_s = |lambda| / slack; equality rows 0). One further matrix takes the
-final point with a synthetic log-uniform Sigma_x in 1e-8 .. 1e8. The NLP data are cached in
-``--data`` (IPOPT takes a minute), the reference inertia (dense ``numpy.linalg.eigvalsh`` of
-``kkt.dense_matrix``, ~20 s per matrix) next to it.
+-1 / Sigma_s with Sigma_s = |lambda| / slack; equality rows 0). One further matrix ("synth")
+takes the final point with synthetic log-uniform Sigma_x and D_c in 1e-8 .. 1e8. The NLP data
+are cached in ``--data`` (IPOPT takes a minute), the reference eigenvalues next to it.
 
-For each matrix and shift delta_w in {0, the smallest 1e-4 * 8^j giving inertia (n, m, 0)}:
-  - time (median of ``--repeats``, jitted) of ``factor``, one plain block solve (``_solve_vec``)
-    and ``solve`` with the IPM's refinement settings (min 1, max 10 steps, ratio 1e-10),
-  - the number of pivot blocks that leave the quasi-definite fast path,
-  - the relative residual ||K u - r|| / ||r|| of the refined solve and its relative difference
-    from ``scipy.sparse.linalg.spsolve``, the refinement steps taken,
-  - inertia reported by ``factor`` vs the dense eigenvalues.
+For each matrix: IPOPT's inertia correction on ``factor``'s inertia picks delta_c = 1e-9 if K is
+singular and the smallest delta_w in {0, 1e-4 * 8^j} giving inertia (n, m, 0); the cases are
+(0, 0), (0, delta_c) and (delta_w, delta_c). For each case:
+  - time (median of ``--repeats``, jitted, wall and CPU) of ``factor``, one plain block solve
+    (``_solve_vec``) and ``solve`` with the IPM's refinement settings (min 1, max 10 steps,
+    ratio 1e-10), and the refinement steps taken,
+  - the number of pivot blocks off the quasi-definite fast path (eigendecomposed),
+  - accuracy: normwise backward error of the refined solve in the Ruiz-equilibrated system (an
+    independent numpy equilibration), and of ``scipy.sparse.linalg.spsolve`` on the same
+    equilibrated system, and their relative difference,
+  - inertia from ``factor`` against dense ``numpy.linalg.eigvalsh`` of the equilibrated K (a
+    congruence): "OK" when equal, eigenvalues with |eig| <= n eps max|eig| (third number) counted
+    as either sign or zero.
+``--baseline-kkt FILE`` runs the same for another kkt.py and then times both in alternation
+(one call of each per round), so that a varying load on the shared machine affects both alike.
 Set OMP_NUM_THREADS=1 when comparing with other runs; report ``uptime`` next to the numbers.
 """
 
