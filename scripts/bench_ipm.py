@@ -6,7 +6,9 @@
 1. Per-iteration time at N = 100 (T1's dynamic stage-2 NLP from the 2S warm start, ``--iters``
    iterations, medians of ``--runs``): IPM and IPOPT, and their ratio.
 2. The whole 2S solve (A,F+C,2S) per task with each solver: stage statuses and iterations, solve
-   time (compile excluded), objective relative difference and max |q_ipm - q_ipopt|.
+   time (compile excluded), objective relative difference and max |q_ipm - q_ipopt|; then stage 2
+   alone from the same start (IPOPT's stage-1 solution) for both, to compare optima and
+   iteration counts on the same problem.
 3. IPM compile time of the N = 100 NLP in fresh processes: cold (empty persistent JAX cache) and
    warm (the cache the cold run filled).
 4. Throughput of a ``vmap`` batch of ``--batch`` stage-1 (pseudo-static, N1 = 30) problems of T1
@@ -71,6 +73,27 @@ def per_iteration(runs: int, iters: int) -> dict:
             ms.append(r.solve_time_s / max(r.iterations, 1) * 1e3)
         out[name] = {"ms_per_iteration_median": float(np.median(ms)), "samples_ms": ms, "iterations": int(r.iterations)}
     out["ratio_ipm_over_ipopt"] = out["ipm"]["ms_per_iteration_median"] / out["ipopt"]["ms_per_iteration_median"]
+    return out
+
+
+def stage2_same_start(task: str) -> dict:
+    """Stage 2 of 2S (the dynamic N = 100 NLP) from the same warm start for both solvers (IPOPT's
+    stage-1 solution, interpolated, as 2S does): does the IPM reach IPOPT's optimum on the same
+    problem, and in how many iterations?"""
+    first, prob = stage1_problem(task)
+    r1 = solve_ipopt(first.nlp, first.p, first.bounds, options=strat.STAGE1_DEFAULTS)
+    Zf = strat.interpolate_full(first.full(r1.x), float(prob.p.T), prob.layout)
+    x0 = np.clip(np.asarray(tr.free_from_full(prob.layout, Zf)), prob.bounds.xl, prob.bounds.xu)
+    out = {}
+    for name, fn in (("ipm", solve_ipm), ("ipopt", solve_ipopt)):
+        r = fn(prob.nlp, prob.p, prob.bounds, x0=x0, options=strat.STAGE2_DEFAULTS)
+        out[name] = {"status": r.status, "iterations": int(r.iterations), "objective": float(r.objective),
+                     "solve_s": r.solve_time_s, "ms_per_iteration": r.solve_time_s / max(r.iterations, 1) * 1e3,
+                     "q": np.asarray(prob.full(r.x))[:, 0:5]}
+    a, b = out["ipm"], out["ipopt"]
+    out["objective_rel_diff"] = abs(a["objective"] - b["objective"]) / max(abs(b["objective"]), 1e-12)
+    out["max_abs_dq_rad"] = float(np.max(np.abs(a.pop("q") - b.pop("q"))))
+    out["iteration_ratio_ipm_over_ipopt"] = a["iterations"] / max(b["iterations"], 1)
     return out
 
 
@@ -180,6 +203,14 @@ def main():
         print(f"{task:5s} {'+'.join(s[:16] for s in a['status']):>34s} {'+'.join(map(str, a['iterations'])):>9s} "
               f"{a['solve_s_median']:6.2f} | {'+'.join(map(str, b['iterations'])):>9s} {b['solve_s_median']:6.2f} | "
               f"{r['objective_rel_diff']:8.1e} {r['max_abs_dq_rad']:7.3f}")
+
+    results["stage2_same_start"] = {}
+    print(f"{'task':5s} {'stage 2 from IPOPT stage 1: IPM':>34s} {'its':>5s} {'ms/it':>6s} | {'IPOPT its':>9s} {'ms/it':>6s} | {'rel obj':>8s} {'max dq':>7s}")
+    for task in args.tasks:
+        r = results["stage2_same_start"][task] = stage2_same_start(task)
+        a, b = r["ipm"], r["ipopt"]
+        print(f"{task:5s} {a['status'][:34]:>34s} {a['iterations']:5d} {a['ms_per_iteration']:6.1f} | "
+              f"{b['iterations']:9d} {b['ms_per_iteration']:6.1f} | {r['objective_rel_diff']:8.1e} {r['max_abs_dq_rad']:7.1e}")
 
     if not args.skip_compile:
         results["compile"] = c = compile_times()

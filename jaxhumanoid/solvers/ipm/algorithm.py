@@ -123,6 +123,22 @@ def resto_off(R: Resto) -> Resto:
                       zp=jnp.zeros_like(R.zp), zn=jnp.zeros_like(R.zn), dr=jnp.zeros_like(R.dr))
 
 
+class Watchdog(NamedTuple):
+    """IPOPT's watchdog (Chamberlain et al.): after ``watchdog_shortened_iter_trigger``
+    consecutive shortened steps, full steps are taken tentatively (up to
+    ``watchdog_trial_iter_max``) and judged against the point where the watchdog started; if
+    none is acceptable, the iterate goes back there and backtracks from half the step."""
+    count: jax.Array        # consecutive shortened steps
+    on: jax.Array
+    trials: jax.Array
+    it: Iterate
+    ev: Evals
+    theta: jax.Array        # merit and directional derivative at the watchdog's start
+    phi: jax.Array
+    gd: jax.Array
+    skip_first: jax.Array   # backtrack without trying the full step (after a watchdog reset)
+
+
 class State(NamedTuple):
     it: Iterate
     ev: Evals
@@ -145,6 +161,7 @@ class State(NamedTuple):
     has_acc: jax.Array
     resto_iters: jax.Array
     rs: Resto
+    wd: Watchdog
     hist: dict
 
 
@@ -613,17 +630,30 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
                       jnp.minimum(o.gamma_theta, o.gamma_phi * theta_k / mgd)),
             o.gamma_theta)
 
+        # the watchdog: starts after enough shortened steps; while it is on, trial points are
+        # judged against the point where it started
+        W = S.wd
+        W = W._replace(count=jnp.where(nupd > 0, 0, W.count), on=W.on & (nupd == 0))
+        start_wd = ((~W.on) & (~resto) & (W.count >= o.watchdog_shortened_iter_trigger)
+                    & (o.watchdog_shortened_iter_trigger > 0) & (~W.skip_first))
+        in_wd = W.on | start_wd
+        theta_ref = jnp.where(W.on, W.theta, theta_k)
+        phi_ref = jnp.where(W.on, W.phi, phi_k)
+        gd_ref = jnp.where(W.on, W.gd, gd)
+        gd_ref_neg = gd_ref < 0
+        mgd_ref = jnp.where(gd_ref_neg, -gd_ref, 1.0)
+
         def switching(a):
-            return gd_neg & (a * mgd ** o.s_phi > o.delta * theta_k ** o.s_theta)
+            return gd_ref_neg & (a * mgd_ref ** o.s_phi > o.delta * theta_ref ** o.s_theta)
 
         def acceptable(a, theta_t, phi_t):
-            """(accepted, filter not augmented): the Armijo test applies when theta_k <= theta_min
+            """(accepted, filter not augmented): the Armijo test applies when theta_ref <= theta_min
             and the switching condition (19) holds; as in IPOPT's implementation, the filter is
-            left alone whenever the switching condition and Armijo hold, whatever theta_k."""
+            left alone whenever the switching condition and Armijo hold, whatever theta_ref."""
             sw = switching(a)
-            armijo = phi_t <= phi_k + o.eta_phi * a * gd
-            suff = (theta_t <= (1 - o.gamma_theta) * theta_k) | (phi_t <= phi_k - o.gamma_phi * theta_k)
-            return filter_ok(S, theta_t, phi_t) & jnp.where((theta_k <= S.theta_min) & sw, armijo, suff), sw & armijo
+            armijo = phi_t <= phi_ref + o.eta_phi * a * gd_ref
+            suff = (theta_t <= (1 - o.gamma_theta) * theta_ref) | (phi_t <= phi_ref - o.gamma_phi * theta_ref)
+            return filter_ok(S, theta_t, phi_t) & jnp.where((theta_ref <= S.theta_min) & sw, armijo, suff), sw & armijo
 
         tiny = jnp.max(jnp.abs(dx) / (1.0 + jnp.abs(it.x)), initial=0.0) < 10 * EPS
         tiny = tiny & (jnp.max(jnp.abs(ds) / (1.0 + jnp.abs(it.s)), initial=0.0) < 10 * EPS) & ok_step & ~resto
@@ -634,7 +664,7 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         # first trial at alpha_max
         f1, g1, s1, th1, ph1 = trial(amax, dx, ds, dp, dn)
         acc1, ft1 = acceptable(amax, th1, ph1)
-        acc1 = acc1 | tiny
+        acc1 = (acc1 | tiny) & ~W.skip_first
 
         # second-order corrections (Sec. 2.4), only if the first trial did not reduce theta
         class SOC(NamedTuple):
@@ -654,7 +684,7 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
             return constr_resid(P, g_, s_) + jnp.where(rr, (R.n + a_ * dn) - (R.p + a_ * dp), 0.0)
 
         soc0 = SOC(jnp.zeros((), jnp.int32), amax * c + resid_r(g1, s1, amax), th1,
-                   (~acc1) & (th1 >= theta_k) & ok_step & (o.max_soc > 0),
+                   (~acc1) & (th1 >= theta_k) & ok_step & (o.max_soc > 0) & ~in_wd & ~W.skip_first,
                    jnp.zeros((), bool), jnp.zeros((), bool), amax, (dx, ds, dy, dp, dn), f1, g1, s1)
 
         def soc_body(Q):
@@ -681,7 +711,7 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
             s: jax.Array
             fail: jax.Array
 
-        start_bt = (~acc1) & (~soc.acc) & ok_step
+        start_bt = (~acc1) & (~soc.acc) & ok_step & ~in_wd
         ls0 = LS(0.5 * amax, jnp.ones((), jnp.int32), jnp.zeros((), bool), jnp.zeros((), bool), f1, g1, s1,
                  (0.5 * amax < a_min) & start_bt)
 
@@ -697,12 +727,19 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
 
         ls = lax.while_loop(ls_cond, ls_body, ls0)
 
+        # watchdog outcome: an acceptable full step ends it; otherwise the full step is taken
+        # tentatively, or, after watchdog_trial_iter_max of them, the iterate goes back
+        wd_fail = in_wd & ok_step & ~acc1
+        wd_trials = W.trials + 1
+        wd_reset = wd_fail & (wd_trials > o.watchdog_trial_iter_max)
+        wd_tentative = wd_fail & ~wd_reset
+
         # choose the accepted trial
         use_soc = (~acc1) & soc.acc
         use_bt = (~acc1) & (~soc.acc) & ls.acc
-        accepted = ok_step & (acc1 | soc.acc | ls.acc)
-        a_pr = jnp.where(acc1, amax, jnp.where(use_soc, soc.a, ls.a))
-        ftype = jnp.where(acc1, ft1, jnp.where(use_soc, soc.ftype, ls.ftype)) | tiny
+        accepted = ok_step & (acc1 | soc.acc | ls.acc | wd_tentative)
+        a_pr = jnp.where(acc1 | wd_tentative, amax, jnp.where(use_soc, soc.a, ls.a))
+        ftype = jnp.where(acc1, ft1, jnp.where(use_soc, soc.ftype, ls.ftype)) | tiny | wd_tentative
         DX, DS, DY, DP, DN = (jnp.where(use_soc, a_, b_) for a_, b_ in zip(soc.d, (dx, ds, dy, dp, dn)))
         f_new = jnp.where(acc1, f1, jnp.where(use_soc, soc.f, ls.f))
         g_new = jnp.where(acc1, g1, jnp.where(use_soc, soc.g, ls.g))
@@ -724,13 +761,13 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         n_n = jnp.where(rr, R.n + a_pr * DN, R.n)
         R_acc = R._replace(fresh=jnp.zeros((), bool), p=p_n, n=n_n, zp=clip_mult(R.zp + a_du * dzp, p_n, rr, mu),
                            zn=clip_mult(R.zn + a_du * dzn, n_n, rr, mu))
-        S_acc = lax.cond(ftype, lambda s_: s_, lambda s_: filter_add(s_, theta_k, phi_k), S)
+        S_acc = lax.cond(ftype, lambda s_: s_, lambda s_: filter_add(s_, theta_ref, phi_ref), S)
         S_acc = S_acc._replace(it=Iterate(x_n, s_n, y_n, zl, zu, vl, vu), rs=R_acc)
 
         # a failed line search at an acceptable point stops there ("Solved_To_Acceptable_Level",
         # as IPOPT); otherwise it starts the restoration phase (A-5.5 / A-9), which counts its
         # iterations as IPOPT does. A failed line search inside the restoration phase ends it.
-        ls_failed = ~accepted      # includes a failed inertia correction (IC-6)
+        ls_failed = ~accepted & ~wd_reset      # includes a failed inertia correction (IC-6)
         stop_acceptable = ls_failed & S.cur_acc & ~resto
         start_resto = ls_failed & ~S.cur_acc & ~resto
         resto_failed = ls_failed & resto
@@ -745,16 +782,28 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         grad_n, jac_n = derivs(P, x_next)
         ev_next = Evals(f_next, g_next, grad_n, jac_n)
 
-        # a failed restoration falls back to the last acceptable iterate
+        # a failed restoration falls back to the last acceptable iterate; a failed watchdog to
+        # the point where it started
         rollback = resto_failed & S.has_acc
         it_next = jax.tree.map(lambda a_, b_: jnp.where(rollback, a_, b_), S.acc_it, S_next.it)
         ev_next = jax.tree.map(lambda a_, b_: jnp.where(rollback, a_, b_), S.acc_ev, ev_next)
+        it_next = jax.tree.map(lambda a_, b_: jnp.where(wd_reset, a_, b_), W.it, it_next)
+        ev_next = jax.tree.map(lambda a_, b_: jnp.where(wd_reset, a_, b_), W.ev, ev_next)
+        shortened = accepted & ~in_wd & ~resto & (a_pr < amax)
+        W_next = Watchdog(
+            count=jnp.where(shortened, W.count + 1, 0).astype(jnp.int32),
+            on=wd_tentative & ~start_resto,
+            trials=jnp.where(wd_tentative, wd_trials, 0).astype(jnp.int32),
+            it=jax.tree.map(lambda a_, b_: jnp.where(start_wd, a_, b_), it, W.it),
+            ev=jax.tree.map(lambda a_, b_: jnp.where(start_wd, a_, b_), ev, W.ev),
+            theta=jnp.where(start_wd, theta_k, W.theta), phi=jnp.where(start_wd, phi_k, W.phi),
+            gd=jnp.where(start_wd, gd, W.gd), skip_first=wd_reset)
         status = jnp.where(stop_acceptable | rollback, 2,
                            jnp.where(resto_failed, jnp.where(ok_step, 5, 6), 0)).astype(jnp.int32)
         kind = jnp.where(start_resto, ord("R"),
-                         jnp.where(tiny, ord("s"),
+                         jnp.where(tiny, ord("s"), jnp.where(wd_tentative, ord("w"), jnp.where(wd_reset, ord("W"),
                                    jnp.where(use_soc, jnp.where(ftype, ord("F"), ord("H")),
-                                             jnp.where(ftype, ord("f"), ord("h")))))
+                                             jnp.where(ftype, ord("f"), ord("h")))))))
         tiny_count = jnp.where(tiny, S.tiny_count + 1, 0).astype(jnp.int32)
         # ||d|| as IPOPT's log: the primal step (x, s and, in the restoration phase, p and n)
         d_norm = jnp.max(jnp.stack([jnp.max(jnp.abs(v), initial=0.0) for v in (DX, DS, DP, DN)]))
@@ -762,7 +811,7 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
                          reg=dw, alpha_du=jnp.where(accepted, a_du, 0.0), alpha_pr=jnp.where(accepted, a_pr, 0.0),
                          ls=n_trials, kind=kind, resto_iters=S.resto_iters + resto.astype(jnp.int32),
                          n_fact=n_fact, mode=resto.astype(jnp.int32), res_ratio=res_ratio)
-        S_next = S_next._replace(it=it_next, ev=ev_next, tiny_count=tiny_count,
+        S_next = S_next._replace(it=it_next, ev=ev_next, tiny_count=tiny_count, wd=W_next,
                                  resto_iters=S.resto_iters + resto.astype(jnp.int32), k=S.k + 1)
         # the regularisation history belongs to the problem being solved (IPOPT's restoration
         # phase has its own); entering and leaving the restoration set it themselves
@@ -877,6 +926,7 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
                   theta_max=o.theta_max_fact * jnp.maximum(1.0, theta0),
                   dw_last=jnp.zeros(()), pert=jnp.zeros(3, jnp.int32), n_acceptable=jnp.zeros((), jnp.int32), tiny_count=jnp.zeros((), jnp.int32),
                   resto_iters=jnp.zeros((), jnp.int32), hist=hist, rs=resto0,
+                  wd=Watchdog(jnp.zeros((), jnp.int32), z0 > 0, jnp.zeros((), jnp.int32), it, ev, z0, z0, z0, z0 > 0),
                   cur_acc=jnp.zeros((), bool), acc_it=it, acc_ev=ev, has_acc=jnp.zeros((), bool))
         info0 = dict(mu=S.mu, d_norm=jnp.zeros(()), reg=jnp.zeros(()), alpha_du=jnp.zeros(()),
                      alpha_pr=jnp.zeros(()), ls=jnp.zeros((), jnp.int32), kind=jnp.zeros((), jnp.int32),

@@ -61,6 +61,10 @@ class IPMOptions:
     eta_phi: float = 1e-8
     alpha_min_frac: float = 0.05
     max_ls_trials: int = 40
+    # IPOPT's watchdog (IPOPT's default trigger is 10). Off by default here: on T1's stage 2 it
+    # turned a 2287-iteration success into a 3000-iteration failure (README)
+    watchdog_shortened_iter_trigger: int = 0
+    watchdog_trial_iter_max: int = 3
     filter_size: int = 256
     # second-order correction (Sec. 2.4)
     max_soc: int = 4
@@ -111,8 +115,10 @@ _POSITIVE = (
     "resto_penalty_parameter", "resto_proximity_weight", "resto_theta_max_fact", "bound_mult_reset_threshold",
 )
 _OPEN_UNIT = ("kappa_mu", "tau_min", "perturb_dec_fact", "kappa_soc", "kappa_resto")
-_NONNEG_INT = ("acceptable_iter", "max_soc", "min_refinement_steps", "max_refinement_steps", "print_level", "degen_iters_max")
-_POS_INT = ("max_iter", "max_ls_trials", "filter_size", "max_inertia_trials", "max_resto_iter")
+_NONNEG_INT = ("acceptable_iter", "max_soc", "min_refinement_steps", "max_refinement_steps", "print_level", "degen_iters_max",
+               "watchdog_shortened_iter_trigger")
+
+_POS_INT = ("max_iter", "max_ls_trials", "filter_size", "max_inertia_trials", "max_resto_iter", "watchdog_trial_iter_max")
 SCALING_METHODS = ("gradient-based", "none")
 
 
