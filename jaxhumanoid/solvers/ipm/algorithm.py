@@ -92,6 +92,24 @@ class Evals(NamedTuple):
     jac: jax.Array      # scaled Jacobian values
 
 
+class Globalization(NamedTuple):
+    """The filter (Sec. 2.3) and the inertia correction's memory (Sec. 3.1) of the problem being
+    solved; the restoration phase starts its own and stashes the original problem's."""
+    filt_theta: jax.Array
+    filt_phi: jax.Array
+    filt_n: jax.Array
+    theta_min: jax.Array
+    theta_max: jax.Array
+    dw_last: jax.Array
+    pert: jax.Array         # (3,) IPOPT's degeneracy test state, see finalize_test
+
+
+def fresh_globalization(size: int, theta_min, theta_max) -> Globalization:
+    inf = jnp.full(size, jnp.inf)
+    return Globalization(inf, inf, jnp.zeros((), jnp.int32), jnp.asarray(theta_min, float),
+                         jnp.asarray(theta_max, float), jnp.zeros(()), jnp.zeros(3, jnp.int32))
+
+
 class Resto(NamedTuple):
     """Restoration-phase variables and what the return to the original problem needs."""
     on: jax.Array           # the iteration is solving the restoration problem
@@ -104,17 +122,11 @@ class Resto(NamedTuple):
     dr: jax.Array           # (n,) diagonal of D_R^2 = 1/max(1, |x_R|)^2 (0 when not in restoration)
     s0: jax.Array           # slacks and bound multipliers where the restoration started
     z0: tuple
-    mu_orig: jax.Array      # the original problem's mu, filter and regularisation, stashed
-    theta_ref: jax.Array
+    mu_orig: jax.Array      # the original problem's mu, reference point, filter and
+    theta_ref: jax.Array    # regularisation, stashed for the return
     phi_ref: jax.Array
     inf_ref: jax.Array
-    filt_theta: jax.Array
-    filt_phi: jax.Array
-    filt_n: jax.Array
-    theta_min: jax.Array
-    theta_max: jax.Array
-    dw_last: jax.Array
-    pert: jax.Array
+    outer: "Globalization"
 
 
 def resto_off(R: Resto) -> Resto:
@@ -146,13 +158,7 @@ class State(NamedTuple):
     k: jax.Array
     done: jax.Array
     status: jax.Array
-    filt_theta: jax.Array
-    filt_phi: jax.Array
-    filt_n: jax.Array
-    theta_min: jax.Array
-    theta_max: jax.Array
-    dw_last: jax.Array
-    pert: jax.Array         # (3,) IPOPT's degeneracy test state, see finalize_test
+    gl: Globalization
     n_acceptable: jax.Array
     tiny_count: jax.Array
     cur_acc: jax.Array      # the current iterate passes the acceptable-level tests
@@ -473,19 +479,21 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         return jnp.where(good & ~P.free, y, 0.0)
 
     # ---------------------------------------------------------------- filter helpers
-    def filter_ok(S, theta, phi):
-        blocked = (theta >= S.filt_theta) & (phi >= S.filt_phi)
-        return (theta <= S.theta_max) & ~jnp.any(blocked)
+    def filter_ok(G, theta, phi):
+        blocked = (theta >= G.filt_theta) & (phi >= G.filt_phi)
+        return (theta <= G.theta_max) & ~jnp.any(blocked)
 
     def filter_add(S, theta, phi):
-        i = S.filt_n % o.filter_size
-        return S._replace(filt_theta=S.filt_theta.at[i].set((1 - o.gamma_theta) * theta),
-                          filt_phi=S.filt_phi.at[i].set(phi - o.gamma_phi * theta),
-                          filt_n=S.filt_n + 1)
+        G = S.gl
+        i = G.filt_n % o.filter_size
+        return S._replace(gl=G._replace(filt_theta=G.filt_theta.at[i].set((1 - o.gamma_theta) * theta),
+                                        filt_phi=G.filt_phi.at[i].set(phi - o.gamma_phi * theta),
+                                        filt_n=G.filt_n + 1))
 
     def filter_reset(S):
-        return S._replace(filt_theta=jnp.full(o.filter_size, jnp.inf),
-                          filt_phi=jnp.full(o.filter_size, jnp.inf), filt_n=jnp.zeros((), jnp.int32))
+        return S._replace(gl=S.gl._replace(filt_theta=jnp.full(o.filter_size, jnp.inf),
+                                           filt_phi=jnp.full(o.filter_size, jnp.inf),
+                                           filt_n=jnp.zeros((), jnp.int32)))
 
     # ---------------------------------------------------------------- merit of the current mode
     def merit(P, R, f, g, x, s, pv, nv, mu):
@@ -529,14 +537,11 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
                   zn=jnp.where(rows, mu_r / nv, 0.0), xR=it.x,
                   dr=jnp.where(P.fixed, 0.0, 1.0 / jnp.maximum(1.0, jnp.abs(it.x)) ** 2),
                   s0=it.s, z0=(it.zl, it.zu, it.vl, it.vu), mu_orig=mu, theta_ref=theta_k, phi_ref=phi_k,
-                  inf_ref=inf0, filt_theta=S.filt_theta, filt_phi=S.filt_phi, filt_n=S.filt_n,
-                  theta_min=S.theta_min, theta_max=S.theta_max, dw_last=S.dw_last, pert=S.pert)
+                  inf_ref=inf0, outer=S.gl)
         it_r = Iterate(it.x, it.s, jnp.zeros(m), jnp.minimum(rho, it.zl), jnp.minimum(rho, it.zu),
                        jnp.minimum(rho, it.vl), jnp.minimum(rho, it.vu))
-        S = filter_reset(S)
-        return S._replace(it=it_r, rs=R, mu=mu_r, theta_max=o.resto_theta_max_fact * jnp.ones(()),
-                          theta_min=o.theta_min_fact * jnp.ones(()), dw_last=jnp.zeros(()),
-                          pert=jnp.zeros(3, jnp.int32), n_acceptable=jnp.zeros((), jnp.int32))
+        return S._replace(it=it_r, rs=R, mu=mu_r, n_acceptable=jnp.zeros((), jnp.int32),
+                          gl=fresh_globalization(o.filter_size, o.theta_min_fact, o.resto_theta_max_fact))
 
     def restoration_done(P, R, f, g, x, s):
         """IPOPT's return test: the original infeasibility reduced by kappa_resto and the point
@@ -545,8 +550,7 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         inf = jnp.max(jnp.abs(c), initial=0.0)
         theta = jnp.sum(jnp.abs(c))
         phi = barrier_phi(P, f, x, s, R.mu_orig)
-        blocked = (theta >= R.filt_theta) & (phi >= R.filt_phi)
-        in_filter = (theta <= R.theta_max) & ~jnp.any(blocked) & jnp.isfinite(phi)
+        in_filter = filter_ok(R.outer, theta, phi) & jnp.isfinite(phi)
         progress = (theta <= (1 - o.gamma_theta) * R.theta_ref) | (phi <= R.phi_ref - o.gamma_phi * R.theta_ref)
         enough = inf <= jnp.maximum(o.kappa_resto * R.inf_ref, jnp.minimum(o.tol, o.constr_viol_tol))
         return enough & in_filter & progress
@@ -567,9 +571,7 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         too_big = jnp.max(jnp.stack([jnp.max(jnp.abs(v), initial=0.0) for v in z])) > o.bound_mult_reset_threshold
         z = [jnp.where(too_big, jnp.where(msk, 1.0, 0.0), v) for v, msk in zip(z, masks)]
         it_o = Iterate(it.x, it.s, jnp.zeros(m), *z)
-        return S._replace(it=it_o, rs=resto_off(R), mu=mu, filt_theta=R.filt_theta, filt_phi=R.filt_phi,
-                          filt_n=R.filt_n, theta_min=R.theta_min, theta_max=R.theta_max, dw_last=R.dw_last,
-                          pert=R.pert, n_acceptable=jnp.zeros((), jnp.int32))
+        return S._replace(it=it_o, rs=resto_off(R), mu=mu, gl=R.outer, n_acceptable=jnp.zeros((), jnp.int32))
 
     # ---------------------------------------------------------------- one IPM iteration
     def iteration(P, S):
@@ -603,7 +605,7 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         sig_p = jnp.where(rr, R.zp / R.p, 0.0)
         sig_n = jnp.where(rr, R.zn / R.n, 0.0)
         A, B, fac, invs, ok_step, dw, dc, dw_last, n_fact, pert = inertia_corrected_factor(
-            P, rr, Wvals, ev.jac, sig_x + prox, sig_s, sig_p, sig_n, S.dw_last, mu, S.pert)
+            P, rr, Wvals, ev.jac, sig_x + prox, sig_s, sig_p, sig_n, S.gl.dw_last, mu, S.gl.pert)
         gx, gs = barrier_grad(P, jnp.where(resto, prox * (it.x - R.xR), ev.grad), it.x, it.s, mu)
         gp = jnp.where(rr, rho - mu / R.p + KAPPA_D * mu, 0.0)
         gn = jnp.where(rr, rho - mu / R.n + KAPPA_D * mu, 0.0)
@@ -625,7 +627,7 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         mgd = jnp.where(gd_neg, -gd, 1.0)
         a_min = o.alpha_min_frac * jnp.where(
             gd_neg,
-            jnp.where(theta_k <= S.theta_min,
+            jnp.where(theta_k <= S.gl.theta_min,
                       jnp.minimum(o.gamma_theta, jnp.minimum(o.gamma_phi * theta_k / mgd, o.delta * theta_k ** o.s_theta / mgd ** o.s_phi)),
                       jnp.minimum(o.gamma_theta, o.gamma_phi * theta_k / mgd)),
             o.gamma_theta)
@@ -653,7 +655,7 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
             sw = switching(a)
             armijo = phi_t <= phi_ref + o.eta_phi * a * gd_ref
             suff = (theta_t <= (1 - o.gamma_theta) * theta_ref) | (phi_t <= phi_ref - o.gamma_phi * theta_ref)
-            return filter_ok(S, theta_t, phi_t) & jnp.where((theta_ref <= S.theta_min) & sw, armijo, suff), sw & armijo
+            return filter_ok(S.gl, theta_t, phi_t) & jnp.where((theta_ref <= S.gl.theta_min) & sw, armijo, suff), sw & armijo
 
         tiny = jnp.max(jnp.abs(dx) / (1.0 + jnp.abs(it.x)), initial=0.0) < 10 * EPS
         tiny = tiny & (jnp.max(jnp.abs(ds) / (1.0 + jnp.abs(it.s)), initial=0.0) < 10 * EPS) & ok_step & ~resto
@@ -816,8 +818,8 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         # the regularisation history belongs to the problem being solved (IPOPT's restoration
         # phase has its own); entering and leaving the restoration set it themselves
         upd = (~resto & ~start_resto) | (resto & S_next.rs.on)
-        S_next = S_next._replace(dw_last=jnp.where(upd, dw_last, S_next.dw_last),
-                                 pert=jnp.where(upd, pert, S_next.pert))
+        S_next = S_next._replace(gl=S_next.gl._replace(dw_last=jnp.where(upd, dw_last, S_next.gl.dw_last),
+                                                       pert=jnp.where(upd, pert, S_next.gl.pert)))
         return S_next, status, step_info
 
     # ---------------------------------------------------------------- termination + history
@@ -914,17 +916,14 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         zm, zn_ = jnp.zeros(m), jnp.zeros(n)
         z0 = jnp.zeros(())
         resto0 = resto_off(Resto(z0 > 0, z0 > 0, zm, zm, zm, zm, zn_, zn_, zm, (zn_, zn_, zm, zm), z0, z0, z0, z0,
-                                 jnp.full(o.filter_size, jnp.inf), jnp.full(o.filter_size, jnp.inf),
-                                 jnp.zeros((), jnp.int32), z0, z0, z0, jnp.zeros(3, jnp.int32)))
+                                 fresh_globalization(o.filter_size, 0.0, 0.0)))
         hist = {key: jnp.zeros(H if o.keep_history else 1, dtype=jnp.int32 if key in INT_FIELDS else float)
                 for key in HIST_FIELDS}
         S = State(it=it, ev=ev, mu=jnp.asarray(o.mu_init, float), k=jnp.zeros((), jnp.int32),
                   done=jnp.zeros((), bool), status=jnp.zeros((), jnp.int32),
-                  filt_theta=jnp.full(o.filter_size, jnp.inf), filt_phi=jnp.full(o.filter_size, jnp.inf),
-                  filt_n=jnp.zeros((), jnp.int32),
-                  theta_min=o.theta_min_fact * jnp.maximum(1.0, theta0),
-                  theta_max=o.theta_max_fact * jnp.maximum(1.0, theta0),
-                  dw_last=jnp.zeros(()), pert=jnp.zeros(3, jnp.int32), n_acceptable=jnp.zeros((), jnp.int32), tiny_count=jnp.zeros((), jnp.int32),
+                  gl=fresh_globalization(o.filter_size, o.theta_min_fact * jnp.maximum(1.0, theta0),
+                                         o.theta_max_fact * jnp.maximum(1.0, theta0)),
+                  n_acceptable=jnp.zeros((), jnp.int32), tiny_count=jnp.zeros((), jnp.int32),
                   resto_iters=jnp.zeros((), jnp.int32), hist=hist, rs=resto0,
                   wd=Watchdog(jnp.zeros((), jnp.int32), z0 > 0, jnp.zeros((), jnp.int32), it, ev, z0, z0, z0, z0 > 0),
                   cur_acc=jnp.zeros((), bool), acc_it=it, acc_ev=ev, has_acc=jnp.zeros((), bool))
