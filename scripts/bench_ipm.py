@@ -55,13 +55,18 @@ def stage1_problem(task: str, N1: int = strat.STAGE1_N):
     return first, final
 
 
+def stage2_warm_start(task: str):
+    """The stage-2 problem and its 2S warm start from IPOPT's stage-1 solution (interpolated)."""
+    first, prob = stage1_problem(task)
+    r1 = solve_ipopt(first.nlp, first.p, first.bounds, options=strat.STAGE1_DEFAULTS)
+    Zf = strat.interpolate_full(first.full(r1.x), float(prob.p.T), prob.layout)
+    return prob, np.clip(np.asarray(tr.free_from_full(prob.layout, Zf)), prob.bounds.xl, prob.bounds.xu)
+
+
 def per_iteration(runs: int, iters: int) -> dict:
     """Both solvers on T1's stage-2 NLP from the same warm start (IPOPT's stage-1 solution,
     interpolated, as 2S does) with the 2S stage-2 options: the iterations that 2S spends."""
-    first, prob = stage1_problem("T1")
-    r1 = solve_ipopt(first.nlp, first.p, first.bounds, options=strat.STAGE1_DEFAULTS)
-    Zf = strat.interpolate_full(first.full(r1.x), float(prob.p.T), prob.layout)
-    x0 = np.clip(np.asarray(tr.free_from_full(prob.layout, Zf)), prob.bounds.xl, prob.bounds.xu)
+    prob, x0 = stage2_warm_start("T1")
     opts = {**strat.STAGE2_DEFAULTS, "max_iter": iters}
     out = {}
     for name, fn in (("ipm", solve_ipm), ("ipopt", solve_ipopt)):
@@ -80,10 +85,7 @@ def stage2_same_start(task: str) -> dict:
     """Stage 2 of 2S (the dynamic N = 100 NLP) from the same warm start for both solvers (IPOPT's
     stage-1 solution, interpolated, as 2S does): does the IPM reach IPOPT's optimum on the same
     problem, and in how many iterations?"""
-    first, prob = stage1_problem(task)
-    r1 = solve_ipopt(first.nlp, first.p, first.bounds, options=strat.STAGE1_DEFAULTS)
-    Zf = strat.interpolate_full(first.full(r1.x), float(prob.p.T), prob.layout)
-    x0 = np.clip(np.asarray(tr.free_from_full(prob.layout, Zf)), prob.bounds.xl, prob.bounds.xu)
+    prob, x0 = stage2_warm_start(task)
     out = {}
     for name, fn in (("ipm", solve_ipm), ("ipopt", solve_ipopt)):
         r = fn(prob.nlp, prob.p, prob.bounds, x0=x0, options=strat.STAGE2_DEFAULTS)

@@ -209,14 +209,14 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         jac = P.sg[jr] * nlp.jac_values(x, P.p)
         return grad, jac
 
-    def hessian(P, x, y):
-        return nlp.hess_values(x, P.sg * y, P.sf, P.p)
+    def hessian(P, x, y, resto):
+        """Hessian of the Lagrangian; the restoration problem's objective has none in x besides
+        the proximity term, which enters the diagonal (``prox_weight``)."""
+        return nlp.hess_values(x, P.sg * y, jnp.where(resto, 0.0, P.sf), P.p)
 
     def jt_mult(jac, y):
         return _segsum(jac * y[jr], jc, n)
 
-    def j_mult(jac, dx):
-        return _segsum(jac * dx[jc], jr, m)
 
     def refinement():
         return o.min_refinement_steps, o.max_refinement_steps, o.residual_ratio_max
@@ -253,6 +253,18 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         c = jnp.where(P.eq, g - P.gl, g - s)
         return jnp.where(P.free, 0.0, c)
 
+    def mu_floor(P):
+        """IPOPT's smallest barrier parameter, min(tol, compl_inf_tol) / (kappa_eps + 1)."""
+        return jnp.minimum(o.tol, o.compl_inf_tol * P.sf) / (o.kappa_eps + 1.0)
+
+    def prox_weight(R, mu):
+        """eta D_R^2 of the restoration objective (0 outside the restoration phase: dr = 0)."""
+        return o.resto_proximity_weight * jnp.sqrt(mu) * R.dr
+
+    def resto_resid(P, R, g, s, pv, nv):
+        """c(x, s) - p + n in the restoration phase (p, n on the non-free rows), else c(x, s)."""
+        return constr_resid(P, g, s) + jnp.where(R.on & ~P.free, nv - pv, 0.0)
+
     def theta_of(P, g, s):
         return jnp.sum(jnp.abs(constr_resid(P, g, s)))
 
@@ -264,14 +276,14 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         rr = R.on & ~P.free
         rho = o.resto_penalty_parameter
         dxl, dxu, dsl, dsu = slacks(P, x, s)
-        gf = jnp.where(R.on, o.resto_proximity_weight * jnp.sqrt(mu) * R.dr * (x - R.xR), ev.grad)
+        gf = jnp.where(R.on, prox_weight(R, mu) * (x - R.xR), ev.grad)
         gLx = jnp.where(P.fixed, 0.0, gf + jt_mult(ev.jac, y) - it.zl + it.zu)
         gLs = jnp.where(P.hsl | P.hsu, -y - it.vl + it.vu, 0.0)
         gLpn = jnp.where(rr, jnp.maximum(jnp.abs(rho - y - R.zp), jnp.abs(rho + y - R.zn)), 0.0)
         dual = jnp.maximum(jnp.maximum(jnp.max(jnp.abs(gLx), initial=0.0), jnp.max(jnp.abs(gLs), initial=0.0)),
                            jnp.max(gLpn, initial=0.0))
         c_orig = constr_resid(P, ev.g, s)
-        primal = jnp.max(jnp.abs(c_orig + jnp.where(rr, R.n - R.p, 0.0)), initial=0.0)
+        primal = jnp.max(jnp.abs(resto_resid(P, R, ev.g, s, R.p, R.n)), initial=0.0)
 
         def cmax(v, mask):
             return jnp.max(jnp.where(mask, jnp.abs(v), 0.0), initial=0.0)
@@ -295,35 +307,32 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
                     pr_u=jnp.max(jnp.abs(c_orig) / P.sg, initial=0.0), du_u=dual / P.sf, co_u=c0 / P.sf)
 
     # ---------------------------------------------------------------- Newton step (13)
+    def masks(P):
+        """Hessian and Jacobian entries that enter K (fixed variables and free rows drop out)."""
+        return (jnp.where(P.fixed[hr] | P.fixed[hc], 0.0, 1.0),
+                jnp.where(P.free[jr] | P.fixed[jc], 0.0, 1.0))
+
     def kkt_parts(P, rr, sig_x, sig_s, sig_p, sig_n, dw, dc):
         """Diagonals of the reduced system for given regularisation. The slack step and, in the
         restoration phase, the p and n steps are eliminated: each adds 1/(Sigma + delta_w) to
         minus the constraint diagonal of its row (a positive pivot, so the inertia is unchanged)."""
-        jac_mask = jnp.where(P.free[jr] | P.fixed[jc], 0.0, 1.0)
-        h_mask = jnp.where(P.fixed[hr] | P.fixed[hc], 0.0, 1.0)
         ineq_b = P.hsl | P.hsu
         inv_s = jnp.where(ineq_b, 1.0 / (sig_s + dw), 0.0)
         inv_p = jnp.where(rr, 1.0 / (sig_p + dw), 0.0)
         inv_n = jnp.where(rr, 1.0 / (sig_n + dw), 0.0)
         diag_x = jnp.where(P.fixed, 1.0, sig_x + dw)
         diag_c = jnp.where(P.free, -1.0, -(dc + inv_s + inv_p + inv_n))
-        return h_mask, jac_mask, (inv_s, inv_p, inv_n), diag_x, diag_c
+        return (inv_s, inv_p, inv_n), diag_x, diag_c
 
-    def factorize(P, rr, Wvals, jac, sigs, dw, dc, fast=True, base=None):
-        """Assemble and factor; ``fast=False`` (eigh blocks only) keeps the rarely used call
-        site (multiplier initialisation) small for the compiler. ``base``: blocks assembled
-        once with a zero diagonal, to which only the diagonal is added (IC trials)."""
-        h_mask, jac_mask, invs, diag_x, diag_c = kkt_parts(P, rr, *sigs, dw, dc)
-        if base is None:
-            A, B = kkt.assemble(st, Wvals * h_mask, jac * jac_mask, diag_x, diag_c)
-        else:
-            A, B = kkt.add_diagonal(st, base[0], diag_x, diag_c), base[1]
-        fac = kkt.factor(st, A, B, fast=fast)
-        return A, B, fac, invs
+    def factorize(P, rr, base, sigs, dw, dc):
+        """Factor K = ``base`` (blocks assembled once with a zero diagonal, ``assemble_base``)
+        plus the diagonal of the given regularisation (IC trials only change the diagonal)."""
+        invs, diag_x, diag_c = kkt_parts(P, rr, *sigs, dw, dc)
+        A, B = kkt.add_diagonal(st, base[0], diag_x, diag_c), base[1]
+        return A, B, kkt.factor(st, A, B), invs
 
     def assemble_base(P, Wvals, jac):
-        jac_mask = jnp.where(P.free[jr] | P.fixed[jc], 0.0, 1.0)
-        h_mask = jnp.where(P.fixed[hr] | P.fixed[hc], 0.0, 1.0)
+        h_mask, jac_mask = masks(P)
         return kkt.assemble(st, Wvals * h_mask, jac * jac_mask, jnp.zeros(n), jnp.zeros(m))
 
     def solve_reduced(P, A, B, fac, invs, rx, rs, rp, rn, c):
@@ -334,12 +343,12 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         inv_s, inv_p, inv_n = invs
         bx = jnp.where(P.fixed, 0.0, -rx)
         bc = jnp.where(P.free, 0.0, -c - inv_s * rs - inv_p * rp + inv_n * rn)
-        dx, dy = kkt.solve(st, fac, A, B, bx, bc, *refinement())
-        # IPOPT's residual ratio of the solve (on the reduced system)
-        res = kkt.matvec(A, B, kkt.to_blocks(st, dx, dy)) - kkt.to_blocks(st, bx, bc)
+        dx, dy, res = kkt.solve(st, fac, A, B, bx, bc, *refinement(), with_residual=True)
+        # IPOPT's residual ratio of the solve (on the reduced system), from the refinement's
+        # last residual
         nsol = jnp.maximum(jnp.max(jnp.abs(dx), initial=0.0), jnp.max(jnp.abs(dy), initial=0.0))
         nrhs = jnp.maximum(jnp.max(jnp.abs(bx), initial=0.0), jnp.max(jnp.abs(bc), initial=0.0))
-        ratio = jnp.max(jnp.abs(res)) / jnp.maximum(jnp.minimum(nsol, 1e6 * nrhs) + nrhs, 1e-300)
+        ratio = res / jnp.maximum(jnp.minimum(nsol, 1e6 * nrhs) + nrhs, 1e-300)
         ds = jnp.where(P.eq | P.free, 0.0, inv_s * (dy - rs))
         dy = jnp.where(P.free, 0.0, dy)
         return dx, ds, dy, inv_p * (dy - rp), -inv_n * (dy + rn), ratio
@@ -432,7 +441,7 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
 
         def body(c):
             _, dw, dc, t, test, pert_ = c[:6]
-            A_, B_, fac_, invs_ = factorize(P, rr, Wvals, jac, sigs, dw, dc, base=base)
+            A_, B_, fac_, invs_ = factorize(P, rr, base, sigs, dw, dc)
             fac_ = fac_._replace(npos=fac_.npos.astype(jnp.int64), nneg=fac_.nneg.astype(jnp.int64),
                                  nzero=fac_.nzero.astype(jnp.int64))
             ok = kkt.inertia_ok(st, fac_)
@@ -468,7 +477,7 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
     def ls_multipliers(P, it, ev):
         """y minimising ||grad f + J^T y - z||^2 + ||-y - v||^2 (Sec. 3.6), or 0 if too large."""
         ineq_b = P.hsl | P.hsu
-        jac_mask = jnp.where(P.free[jr] | P.fixed[jc], 0.0, 1.0)
+        jac_mask = masks(P)[1]
         diag_c = jnp.where(P.free, -1.0, jnp.where(ineq_b, -1.0, 0.0))
         A, B = kkt.assemble(st, jnp.zeros(hr.size), ev.jac * jac_mask, jnp.ones(n), diag_c)
         fac = kkt.factor(st, A, B, fast=False)
@@ -501,10 +510,9 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         restoration phase theta = ||c(x, s) - p + n||_1 and phi = the barrier function of
         rho sum(p + n) + eta/2 ||D_R (x - x_R)||^2 (bounds of x, s, p, n)."""
         rr = R.on & ~P.free
-        theta = jnp.sum(jnp.abs(constr_resid(P, g, s) + jnp.where(rr, nv - pv, 0.0)))
-        eta = o.resto_proximity_weight * jnp.sqrt(mu)
+        theta = jnp.sum(jnp.abs(resto_resid(P, R, g, s, pv, nv)))
         f_r = (o.resto_penalty_parameter * jnp.sum(jnp.where(rr, pv + nv, 0.0))
-               + 0.5 * eta * jnp.sum(R.dr * (x - R.xR) ** 2))
+               + 0.5 * jnp.sum(prox_weight(R, mu) * (x - R.xR) ** 2))
         pn = jnp.where(rr, pv, 1.0), jnp.where(rr, nv, 1.0)
         bar_pn = jnp.sum(jnp.where(rr, -mu * (jnp.log(pn[0]) + jnp.log(pn[1])) + KAPPA_D * mu * (pn[0] + pn[1]), 0.0))
         phi = barrier_phi(P, jnp.where(R.on, f_r, f), x, s, mu) + bar_pn
@@ -582,7 +590,7 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
 
         # A-3: barrier parameter update (7), possibly several times; not in the first iteration
         # of a restoration phase (IPOPT)
-        mu_min = jnp.minimum(o.tol, o.compl_inf_tol * P.sf) / (o.kappa_eps + 1.0)
+        mu_min = mu_floor(P)
 
         def mu_cond(c):
             mu, cnt, force = c
@@ -599,9 +607,9 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
 
         # A-4: search direction with inertia correction; in the restoration phase the Hessian
         # is the constraints' part plus the proximity term eta * diag(dr)
-        Wvals = nlp.hess_values(it.x, P.sg * it.y, jnp.where(resto, 0.0, P.sf), P.p)
+        Wvals = hessian(P, it.x, it.y, resto)
         sig_x, sig_s = sigmas(P, it)
-        prox = jnp.where(resto, o.resto_proximity_weight * jnp.sqrt(mu) * R.dr, 0.0)
+        prox = prox_weight(R, mu)
         sig_p = jnp.where(rr, R.zp / R.p, 0.0)
         sig_n = jnp.where(rr, R.zn / R.n, 0.0)
         A, B, fac, invs, ok_step, dw, dc, dw_last, n_fact, pert = inertia_corrected_factor(
@@ -613,7 +621,7 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         rs = jnp.where(P.hsl | P.hsu, gs - it.y, 0.0)
         rp = jnp.where(rr, gp - it.y, 0.0)
         rn = jnp.where(rr, gn + it.y, 0.0)
-        c = constr_resid(P, ev.g, it.s) + jnp.where(rr, R.n - R.p, 0.0)
+        c = resto_resid(P, R, ev.g, it.s, R.p, R.n)
         dx, ds, dy, dp, dn, res_ratio = solve_reduced(P, A, B, fac, invs, rx, rs, rp, rn, c)
         finite_step = jnp.all(jnp.isfinite(dx)) & jnp.all(jnp.isfinite(dy))
         ok_step = ok_step & finite_step
@@ -621,8 +629,12 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         # A-5: filter line search
         theta_k, phi_k = merit(P, R, ev.f, ev.g, it.x, it.s, R.p, R.n, mu)
         gd = jnp.dot(gx, dx) + jnp.dot(gs, ds) + jnp.dot(gp, dp) + jnp.dot(gn, dn)
-        amax = jnp.minimum(frac_to_boundary(P, it.x, it.s, dx, ds, tau),
-                           jnp.minimum(frac_dual(R.p, dp, rr, tau), frac_dual(R.n, dn, rr, tau)))
+        def step_max(dx_, ds_, dp_, dn_):
+            """Fraction to the boundary (15) for x, s and, in the restoration phase, p, n."""
+            return jnp.minimum(frac_to_boundary(P, it.x, it.s, dx_, ds_, tau),
+                               jnp.minimum(frac_dual(R.p, dp_, rr, tau), frac_dual(R.n, dn_, rr, tau)))
+
+        amax = step_max(dx, ds, dp, dn)
         gd_neg = gd < 0
         mgd = jnp.where(gd_neg, -gd, 1.0)
         a_min = o.alpha_min_frac * jnp.where(
@@ -682,22 +694,18 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
             g: jax.Array
             s: jax.Array
 
-        def resid_r(g_, s_, a_):
-            return constr_resid(P, g_, s_) + jnp.where(rr, (R.n + a_ * dn) - (R.p + a_ * dp), 0.0)
-
-        soc0 = SOC(jnp.zeros((), jnp.int32), amax * c + resid_r(g1, s1, amax), th1,
+        soc0 = SOC(jnp.zeros((), jnp.int32), amax * c + resto_resid(P, R, g1, s1, R.p + amax * dp, R.n + amax * dn), th1,
                    (~acc1) & (th1 >= theta_k) & ok_step & (o.max_soc > 0) & ~in_wd & ~W.skip_first,
                    jnp.zeros((), bool), jnp.zeros((), bool), amax, (dx, ds, dy, dp, dn), f1, g1, s1)
 
         def soc_body(Q):
             d_s = solve_reduced(P, A, B, fac, invs, rx, rs, rp, rn, Q.csoc)[:5]
-            a_s = jnp.minimum(frac_to_boundary(P, it.x, it.s, d_s[0], d_s[1], tau),
-                              jnp.minimum(frac_dual(R.p, d_s[3], rr, tau), frac_dual(R.n, d_s[4], rr, tau)))
+            a_s = step_max(d_s[0], d_s[1], d_s[3], d_s[4])
             ft, gt, stt, tht, pht = trial(a_s, d_s[0], d_s[1], d_s[3], d_s[4])
             acc, ftype = acceptable(amax, tht, pht)
             p = Q.p + 1
             cont = (~acc) & (p < o.max_soc) & (tht <= o.kappa_soc * Q.theta_old)
-            csoc = a_s * Q.csoc + constr_resid(P, gt, stt) + jnp.where(rr, (R.n + a_s * d_s[4]) - (R.p + a_s * d_s[3]), 0.0)
+            csoc = a_s * Q.csoc + resto_resid(P, R, gt, stt, R.p + a_s * d_s[3], R.n + a_s * d_s[4])
             return SOC(p, csoc, tht, cont, acc, ftype, a_s, d_s, ft, gt, stt)
 
         soc = lax.while_loop(lambda Q: Q.active, soc_body, soc0)
@@ -773,7 +781,9 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         stop_acceptable = ls_failed & S.cur_acc & ~resto
         start_resto = ls_failed & ~S.cur_acc & ~resto
         resto_failed = ls_failed & resto
-        S_next = jax.tree.map(lambda a_, b_: jnp.where(accepted, a_, b_), S_acc, S)
+        # an accepted step changes the iterate, the restoration variables and the filter only
+        S_next = S._replace(**{f: jax.tree.map(lambda a_, b_: jnp.where(accepted, a_, b_), getattr(S_acc, f), getattr(S, f))
+                               for f in ("it", "rs", "gl")})
         S_next = lax.cond(start_resto, lambda s_: enter_restoration(P, filter_add(s_, theta_k, phi_k), mu, theta_k, phi_k),
                           lambda s_: s_._replace(mu=mu), S_next)
         back = accepted & resto & restoration_done(P, R, f_new, g_new, x_n, s_n)
@@ -837,7 +847,7 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         resto_conv = resto & ((err["E0"] <= o.tol) | ((n_acc >= o.acceptable_iter) & (o.acceptable_iter > 0)))
         resto_code = jnp.where(err["pr_s"] > 1e2 * o.tol, 4, 5)
         finite = jnp.isfinite(S.ev.f) & jnp.all(jnp.isfinite(S.ev.g)) & jnp.all(jnp.isfinite(S.ev.grad)) & jnp.all(jnp.isfinite(S.ev.jac))
-        tiny_stop = (S.tiny_count >= 2) & (S.mu <= jnp.minimum(o.tol, o.compl_inf_tol * P.sf) / (o.kappa_eps + 1.0) * 1.0000001)
+        tiny_stop = (S.tiny_count >= 2) & (S.mu <= mu_floor(P) * 1.0000001)
         new_status = jnp.where(
             status != 0, status,
             jnp.where(~finite, 7,

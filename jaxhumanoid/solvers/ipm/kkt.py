@@ -657,12 +657,15 @@ def from_blocks(st: KKTStructure, u):
 
 
 def solve(st: KKTStructure, fac: Factor, A, B, rx, rc, min_steps: int = 1, max_steps: int = 10,
-          residual_ratio_max: float = 1e-10):
+          residual_ratio_max: float = 1e-10, with_residual: bool = False):
     """(dx, dy) solving K [dx; dy] = [rx; rc] with adaptive iterative refinement (as IPOPT's
     min/max_refinement_steps, residual_ratio_max): u_{i+1} = u_i + K^{-1}(r - K u_i) until the
     residual of the equilibrated system, ||d (r - K u)||_inf / (||u / d||_inf + ||d r||_inf), is at
-    most ``residual_ratio_max`` (after at least ``min_steps`` and at most ``max_steps`` refinements)."""
-    return _solve(st, fac, A, B, rx, rc, min_steps, max_steps, residual_ratio_max)
+    most ``residual_ratio_max`` (after at least ``min_steps`` and at most ``max_steps`` refinements).
+    ``with_residual``: also return ||r - K u||_inf of the returned solution (the refinement's last
+    residual, so no extra product)."""
+    dx, dy, res = _solve(st, fac, A, B, rx, rc, min_steps, max_steps, residual_ratio_max)
+    return (dx, dy, res) if with_residual else (dx, dy)
 
 
 @functools.partial(jax.jit, static_argnames=("st",))
@@ -684,8 +687,8 @@ def _solve(st, fac, A, B, rx, rc, min_steps, max_steps, residual_ratio_max):
         return u, r - _matvec(st, A, B, u), t + 1
 
     # one traced solve: the first pass (t = 0) is the plain solve, the others refine
-    u, _, _ = lax.while_loop(cond, body, (jnp.zeros_like(r), r, jnp.zeros((), jnp.int32)))
-    return from_blocks(st, u)
+    u, res, _ = lax.while_loop(cond, body, (jnp.zeros_like(r), r, jnp.zeros((), jnp.int32)))
+    return (*from_blocks(st, u), jnp.max(jnp.abs(res)))
 
 
 def inertia_ok(st: KKTStructure, fac: Factor):
