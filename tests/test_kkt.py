@@ -6,6 +6,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 import jaxhumanoid  # noqa: F401  (float64)
+import jax
 import jax.numpy as jnp
 
 from jaxhumanoid.solvers.ipm import kkt
@@ -223,3 +224,36 @@ def test_indefinite_state_hessian_fast_path_and_fallback(q_curv):
     assert (int(facb.npos), int(facb.nneg), int(facb.nzero)) == (int(np.sum(ev > 0)), int(np.sum(ev < 0)), 0)
     ux, uc = kkt.solve(stb, facb, Ab, Bb, jnp.asarray(r[:n]), jnp.asarray(r[n:]))
     np.testing.assert_allclose(np.concatenate([ux, uc]), spla.spsolve(K, r), rtol=1e-8, atol=1e-8)
+
+
+def test_vmapped_factor_matches_members_with_mixed_pivot_paths():
+    """Under vmap the fast/eigendecomposition choice of each pivot block has its own batching rule
+    (eigendecompose only when some member needs it): a batch of a matrix whose blocks (nearly)
+    all take the fast path and one that falls back to eigh (strong negative curvature, wrong
+    inertia) gives each member's own pivot paths, inertia and solution, as factored alone; so
+    does a batch of two members with correct inertia."""
+    rng = np.random.default_rng(5)
+    S, nq, nu = 9, 3, 2
+    n, m, idx, vs, cs, jr, jc, jv = double_integrator_pattern(S, nq, nu)
+    hr = np.array([i for k in range(S) for i in idx[k].values()])
+    scale = {"q": 1.0, "v": 1.0, "u": 1e-2}
+    kind = np.array([scale[nm[0]] for k in range(S) for nm in idx[k]])
+    is_q = np.array([nm[0] == "q" for k in range(S) for nm in idx[k]])
+    st = kkt.build_structure(n, m, vs, cs, hr, hr, jr, jc)
+    dx, dc = jnp.zeros(n), jnp.zeros(m)
+    hvs = [np.where(is_q, q_curv, kind) * rng.uniform(0.5, 1.5, n) for q_curv in (-0.5, -40.0, 0.7)]
+    A, B = jax.vmap(lambda hv: kkt.assemble(st, hv, jnp.asarray(jv), dx, dc))(jnp.asarray(np.stack(hvs)))
+    r = jnp.asarray(rng.standard_normal(n + m))
+    solve = lambda A_, B_: kkt.solve(st, kkt.factor(st, A_, B_), A_, B_, r[:n], r[n:])   # noqa: E731
+    for sel in (np.array([0, 1]), np.array([0, 2])):
+        fb = jax.vmap(lambda A_, B_: kkt.factor(st, A_, B_))(A[sel], B[sel])
+        pb = np.asarray(jax.vmap(lambda A_, B_: kkt.pivot_paths(st, A_, B_))(A[sel], B[sel]))
+        ub = jax.vmap(solve)(A[sel], B[sel])
+        for j, i in enumerate(sel):
+            f1 = kkt.factor(st, A[i], B[i])
+            assert (int(fb.npos[j]), int(fb.nneg[j]), int(fb.nzero[j])) == (int(f1.npos), int(f1.nneg), int(f1.nzero))
+            np.testing.assert_array_equal(pb[j], np.asarray(kkt.pivot_paths(st, A[i], B[i])))
+            u1 = solve(A[i], B[i])
+            np.testing.assert_allclose(np.concatenate([ub[0][j], ub[1][j]]), np.concatenate(u1), rtol=1e-10, atol=1e-12)
+        if sel[1] == 1:                                   # the fallback member: more blocks on eigh
+            assert np.sum(pb[1] == 2) > np.sum(pb[0] == 2)

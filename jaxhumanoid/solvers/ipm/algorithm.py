@@ -428,7 +428,7 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         base = assemble_base(P, Wvals, jac)
         z3 = jnp.zeros((S_, nb, nb))
         i0 = jnp.zeros((), jnp.int64)
-        fac0 = kkt.Factor(z3, jnp.zeros((S_, st.b_rows.size, nb)), i0, i0, i0, jnp.ones((S_, nb)))
+        fac0 = kkt.Factor(z3, jnp.ones((S_, nb)), jnp.zeros((S_, st.b_rows.size, nb)), i0, i0, i0, jnp.ones((S_, nb)))
         sigs = (sig_x, sig_s, sig_p, sig_n)
         undetermined0 = (pert[0] == 0) | (pert[1] == 0)
         test0 = jnp.where(undetermined0, T_00, T_NONE)
