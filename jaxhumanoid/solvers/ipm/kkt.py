@@ -302,7 +302,7 @@ def _pivot_block(Dk, rel_zero_tol):
     is unchanged, Sylvester) brings graded IPM blocks (entries 1e-10 .. 1e10) to unit scale; then
     R D_k R = Q diag(w) Q^T (LAPACK syevd) gives the inertia as the signs of w, with |w| below
     rel_zero_tol * max|w| counted as zero, and D_k^{-1} = N diag(sign w) N^T, N = R Q |w|^{-1/2}.
-    Returns (N, sign w, nneg, nzero).
+    Returns (N, sign w, [nneg, nzero, path = 2]) (path as ``pivot_paths``).
     """
     ok = jnp.all(jnp.isfinite(Dk))
     Dk = jnp.where(ok, Dk, 0.0)
@@ -315,7 +315,13 @@ def _pivot_block(Dk, rel_zero_tol):
     nzero = jnp.where(ok, jnp.sum(zero), w.shape[0])
     w_safe = jnp.where(zero, jnp.where(w < 0, -tol, tol), w)
     N = Q * r[:, None] / jnp.sqrt(jnp.abs(w_safe))
-    return N, jnp.sign(w_safe), nneg.astype(jnp.int64), nzero.astype(jnp.int64)
+    return N, jnp.sign(w_safe), jnp.stack([nneg, nzero, jnp.full((), 2)]).astype(jnp.int64)
+
+
+def _apply_inv(N, sgn, v):
+    """D^{-1} v = N (sgn * N^T v) for factored pivot inverses (``Factor.N``, ``Factor.sgn``): one
+    block (nb, nb) or all blocks at once (S, nb, nb)."""
+    return jnp.einsum("...ij,...j->...i", N, sgn * jnp.einsum("...ji,...j->...i", N, v))
 
 
 def _tri_inv(L):
@@ -417,12 +423,6 @@ def _qd_diag_core(Pt, Qt, Rd, gamma=QD_GAMMA):
     return N, jnp.isfinite(N[0, 0]) & jnp.isfinite(N[-1, -1])
 
 
-def _eig_pivot(D, rel_zero_tol):
-    """(N, sgn, [nneg, nzero, path = 2]) of a pivot block by eigendecomposition (``_pivot_block``)."""
-    N, sgn, nneg, nzero = _pivot_block(D, rel_zero_tol)
-    return N, sgn, jnp.stack([nneg, nzero, jnp.full((), 2, jnp.int64)])
-
-
 def _choose_pivot(ok, Nq, build, parts, rel_zero_tol, nneg_fast):
     """(N, sgn, [nneg, nzero, path]): the fast path's factor ``Nq`` where it certified the inertia
     (``ok``; path 0, inertia (nb - nneg_fast, nneg_fast, 0), sgn = [+1.., -1..]), else the
@@ -439,7 +439,7 @@ def _choose_pivot(ok, Nq, build, parts, rel_zero_tol, nneg_fast):
     sgn_fast = np.concatenate([np.ones(nb - nneg_fast), -np.ones(nneg_fast)])
 
     def slow(parts_):
-        return _eig_pivot(build(*parts_), rel_zero_tol)
+        return _pivot_block(build(*parts_), rel_zero_tol)
 
     @jax.custom_batching.custom_vmap
     def choose(ok, Nq, parts_):
@@ -464,7 +464,7 @@ def _pivot(Dk, nbx, fast, rel_zero_tol):
     if fast and nbx > 0:
         Nq, ok = _quasidefinite_block(Dk, nbx)
         return _choose_pivot(ok, Nq, lambda D_: D_, (Dk,), rel_zero_tol, Dk.shape[0] - nbx)
-    return _eig_pivot(Dk, rel_zero_tol)
+    return _pivot_block(Dk, rel_zero_tol)
 
 
 def _sel(ix):
@@ -617,8 +617,8 @@ def _solve_vec(st: KKTStructure, fac: Factor, X1t, r):
     r = fac.d * r
     L = fac.L
 
-    def dinv(v):                          # D_k^{-1} v_k = N_k (sgn_k * N_k^T v_k), all k at once
-        return jnp.einsum("kij,kj->ki", fac.N, fac.sgn * jnp.einsum("kji,kj->ki", fac.N, v))
+    def dinv(v):                          # D_k^{-1} v_k, all k at once
+        return _apply_inv(fac.N, fac.sgn, v)
 
     if st.S == 1:
         return fac.d * dinv(r)
@@ -639,7 +639,7 @@ def _solve_vec(st: KKTStructure, fac: Factor, X1t, r):
 
     _, hs = lax.scan(horner, jnp.zeros((nr,), r.dtype), (w, T), reverse=True)
     v0 = r[0] - jnp.einsum("rn,r->n", X1t, hs[1])
-    u0 = fac.N[0] @ (fac.sgn[0] * (v0 @ fac.N[0]))
+    u0 = _apply_inv(fac.N[0], fac.sgn[0], v0)
 
     def gfwd(g, Tkt):                     # g_k = X_k^T u_0:  g_{k+1} = -T_k^T g_k
         return -(Tkt @ g), g
