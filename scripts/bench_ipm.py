@@ -63,6 +63,11 @@ def stage2_warm_start(task: str):
     return prob, np.clip(np.asarray(tr.free_from_full(prob.layout, Zf)), prob.bounds.xl, prob.bounds.xu)
 
 
+def rel_diff(a: float, b: float) -> float:
+    """|a - b| / |b| (b the IPOPT reference)."""
+    return abs(a - b) / max(abs(b), 1e-12)
+
+
 def per_iteration(runs: int, iters: int) -> dict:
     """Both solvers on T1's stage-2 NLP from the same warm start (IPOPT's stage-1 solution,
     interpolated, as 2S does) with the 2S stage-2 options: the iterations that 2S spends."""
@@ -93,7 +98,7 @@ def stage2_same_start(task: str) -> dict:
                      "solve_s": r.solve_time_s, "ms_per_iteration": r.solve_time_s / max(r.iterations, 1) * 1e3,
                      "q": np.asarray(prob.full(r.x))[:, 0:5]}
     a, b = out["ipm"], out["ipopt"]
-    out["objective_rel_diff"] = abs(a["objective"] - b["objective"]) / max(abs(b["objective"]), 1e-12)
+    out["objective_rel_diff"] = rel_diff(a["objective"], b["objective"])
     out["max_abs_dq_rad"] = float(np.max(np.abs(a.pop("q") - b.pop("q"))))
     out["iteration_ratio_ipm_over_ipopt"] = a["iterations"] / max(b["iterations"], 1)
     return out
@@ -117,7 +122,7 @@ def whole_2s(task: str, runs: int) -> dict:
             "objective": sol.objective,
         }
     a, b = sols["ipm"], sols["ipopt"]
-    res["objective_rel_diff"] = abs(a.objective - b.objective) / max(abs(b.objective), 1e-12)
+    res["objective_rel_diff"] = rel_diff(a.objective, b.objective)
     res["max_abs_dq_rad"] = float(np.max(np.abs(a.q - b.q)))
     return res
 
