@@ -81,6 +81,47 @@ def test_block_tridiagonal_solve_and_inertia(S, nx, nc, shift):
     np.testing.assert_allclose(Kd[np.ix_(perm, perm)], K.toarray(), atol=1e-14)
 
 
+def test_early_exit_decides_inertia_as_the_full_factorisation():
+    # the IPM's inertia-correction trials stop eliminating once the inertia is known not to be
+    # (n, m, 0) (kkt._negative_caps); over Hessian shifts across the change of inertia, the
+    # decision must equal the full factorisation's, and a matrix with the right inertia must be
+    # factored exactly as without the exit
+    rng = np.random.default_rng(11)
+    n, m, vs, cs, hr, hc, jr, jc = random_staged_pattern(rng, 30, 6, 5)
+    st = kkt.build_structure(n, m, vs, cs, hr, hc, jr, jc)
+    hv, jv = rng.standard_normal(hr.size), rng.standard_normal(jr.size)
+    dx0 = rng.uniform(0.0, 1.0, n)
+    exits = 0
+    for shift in (-3.0, -1.5, -0.5, 0.0, 0.3, 0.6, 1.0, 1.5, 2.0, 3.0, 8.0):
+        A, B = kkt.assemble(st, jnp.asarray(hv), jnp.asarray(jv), jnp.asarray(dx0 + shift), -1e-3 * jnp.ones(m))
+        full, early = kkt.factor(st, A, B), kkt.factor(st, A, B, early_exit=True)
+        paths = np.asarray(kkt.pivot_paths(st, A, B, early_exit=True))
+        ok = bool(kkt.inertia_ok(st, full))
+        assert bool(kkt.inertia_ok(st, early)) == ok, shift
+        done = paths != 3
+        np.testing.assert_array_equal(np.asarray(early.N)[done], np.asarray(full.N)[done])
+        if ok:
+            assert np.all(done)
+        exits += int(not done[0])
+        if not done[1]:
+            assert not ok and int(early.nneg) < int(full.nneg)
+    assert exits >= 3
+    # the exit comes early where W is indefinite everywhere; under vmap a block is skipped only
+    # where every member has decided, and each member decides as alone
+    shifts = jnp.array([-3.0, -1.5, 8.0])
+    A, B = jax.vmap(lambda t: kkt.assemble(st, jnp.asarray(hv), jnp.asarray(jv), jnp.asarray(dx0) + t,
+                                           -1e-3 * jnp.ones(m)))(shifts)
+    assert np.sum(np.asarray(kkt.pivot_paths(st, A[0], B[0], early_exit=True)) == 3) >= st.S // 2
+    for sel, skipped in ((np.array([0, 1]), True), (np.array([0, 2]), False)):
+        fb = jax.vmap(lambda A_, B_: kkt.factor(st, A_, B_, early_exit=True))(A[sel], B[sel])
+        pb = np.asarray(jax.vmap(lambda A_, B_: kkt.pivot_paths(st, A_, B_, early_exit=True))(A[sel], B[sel]))
+        assert np.any(pb == 3) == skipped
+        for j, i in enumerate(sel):
+            assert bool(kkt.inertia_ok(st, jax.tree.map(lambda a: a[j], fb))) == (i == 2)
+        if not skipped:
+            np.testing.assert_allclose(np.asarray(fb.N[1]), np.asarray(kkt.factor(st, A[2], B[2]).N), rtol=1e-12, atol=1e-14)
+
+
 def test_singular_kkt_reports_zero_eigenvalue():
     # two identical equality-constraint rows, no dual regularisation: K is singular
     n, m = 3, 2

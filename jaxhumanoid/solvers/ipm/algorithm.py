@@ -329,7 +329,7 @@ def make_ipm(nlp, options: IPMOptions | dict | None = None):
         plus the diagonal of the given regularisation (IC trials only change the diagonal)."""
         invs, diag_x, diag_c = kkt_parts(P, rr, *sigs, dw, dc)
         A, B = kkt.add_diagonal(st, base[0], diag_x, diag_c), base[1]
-        return A, B, kkt.factor(st, A, B), invs
+        return A, B, kkt.factor(st, A, B, early_exit=True), invs
 
     def assemble_base(P, Wvals, jac):
         h_mask, jac_mask = masks(P)

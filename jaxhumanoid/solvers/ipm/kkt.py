@@ -518,8 +518,40 @@ def _matvec(st: KKTStructure, A, B, u):
     return y.at[:-1, cb].add(jnp.einsum("kji,kj->ki", Bc, u[1:, rb]))
 
 
-@functools.partial(jax.jit, static_argnames=("st", "rel_zero_tol", "fast"))
-def _factor(st: KKTStructure, A, B, rel_zero_tol, fast):
+@jax.custom_batching.custom_vmap
+def _all_true(b):
+    """``b``; under ``vmap`` one unbatched flag, all(b). A batched ``lax.cond`` predicate would run
+    both branches for every member: the early exit of ``factor`` then skips a block only where
+    every member has decided (the others' blocks are factored: the same decisions)."""
+    return b
+
+
+@_all_true.def_vmap
+def _all_true_batched(axis_size, in_batched, b):
+    return (jnp.all(b) if in_batched[0] else b), False
+
+
+def _negative_caps(st: KKTStructure) -> np.ndarray:
+    """(S,) the most negative eigenvalues the leading blocks 1..k (entry k; padding included) can
+    have when K has inertia (n, m, 0), for ``factor``'s early exit.
+
+    Haynsworth: nneg(K) = nneg(H) + nneg(S_H) with H the blocks 1..k and S_H its Schur complement
+    in K. When no B_j has dual rows (``b_rows`` all primal, the constraints of stage j act on no
+    variable of stage j - 1), S_H restricted to blocks k+1..S-1 is the saddle-point matrix
+    [[W', A^T], [A, -D_c]] of their own constraints A, D_c >= 0 (only W' holds fill), which has
+    at least as many negative eigenvalues as rows unless some y != 0 has A^T y = 0 = D_c y, and then
+    K [0; y] = 0: K singular. With the decoupled -1 of block 0's dual padding,
+    nneg(H) <= m + n_pad_neg - (S-1-k) (nb - nbx) - pad_0 = k (nb - nbx) + m_0 (m_0 the constraints of
+    block 0). Otherwise only nneg(H) <= nneg(K) holds."""
+    total = st.m + st.n_pad_neg
+    if st.S == 1 or not np.all(st.b_rows < st.nbx):
+        return np.full(st.S, total, np.int64)
+    m0 = int(np.sum(st.con_pos // st.nb == 0))
+    return np.minimum(np.arange(st.S, dtype=np.int64) * (st.nb - st.nbx) + m0, total)
+
+
+@functools.partial(jax.jit, static_argnames=("st", "rel_zero_tol", "fast", "early_exit"))
+def _factor(st: KKTStructure, A, B, rel_zero_tol, fast, early_exit=False):
     # jitted with the structure static (hashed by identity): repeated calls, and the several
     # call sites in one IPM trace, reuse one traced and compiled factorisation
     d, A, Bs = _equilibrate_compact(st, A, B)     # Bs: (S, r, c) nonzero part of the B_k
@@ -535,29 +567,50 @@ def _factor(st: KKTStructure, A, B, rel_zero_tol, fast):
     diag_r = fast and 0 < nbx < nb and bool(np.all(st.b_rows < nbx))
     pre = _qd_diag_pre(A, nbx) if diag_r else ()
 
+    neg_cap = jnp.asarray(_negative_caps(st))
+    pos_cap = st.n + st.n_pad_pos
+
+    def decided(cnt, k):
+        """The inertia of blocks 1..k (counts, padding included) rules out inertia (n, m, 0)."""
+        return (cnt[2] > 0) | (cnt[0] > pos_cap) | (cnt[1] > neg_cap[k])
+
     def body(carry, inp):
-        C, X = carry        # fill on block k's rows b_rows; (-1)^k X_k, border coupling
+        # fill on block k's rows b_rows; (-1)^k X_k, border coupling; inertia of blocks 1..k-1
+        # (the caps grow with k: once decided, the exit is kept)
+        C, X, cnt, dead = carry
         k, bs = inp[:2]
 
         def block(Ak, C_):
             D_ = Ak.at[rr].add(-C_)
             return 0.5 * (D_ + D_.T)
 
-        if diag_r:
-            pb, qt, rd = inp[2:]
-            Nq, okq = _qd_diag_core(pb.at[rr].add(-C), qt, rd)
-            Nk, sk, info = _choose_pivot(okq, Nq, block, (A[k], C), rel_zero_tol, nb - nbx)
-        else:
-            Nk, sk, info = _pivot(block(A[k], C), nbx, fast, rel_zero_tol)
-        Lk = ((bs @ Nk[cb]) * sk) @ Nk.T                    # B_k D_k^{-1} on rows b_rows (r x nb)
-        Cn = jnp.einsum("ij,kj->ik", Lk[:, cb], bs)         # B_k D_k^{-1} B_k^T (lower part read)
-        Xn = jnp.einsum("ar,sr->as", X, Lk[:, rb])          # X_{k+1} = -X_k D_k^{-1} B_k^T
-        return (Cn, Xn), (Nk, sk, Lk, X, info)
+        def eliminate():
+            if diag_r:
+                pb, qt, rd = inp[2:]
+                Nq, okq = _qd_diag_core(pb.at[rr].add(-C), qt, rd)
+                Nk, sk, info = _choose_pivot(okq, Nq, block, (A[k], C), rel_zero_tol, nb - nbx)
+            else:
+                Nk, sk, info = _pivot(block(A[k], C), nbx, fast, rel_zero_tol)
+            Lk = ((bs @ Nk[cb]) * sk) @ Nk.T                    # B_k D_k^{-1} on rows b_rows (r x nb)
+            Cn = jnp.einsum("ij,kj->ik", Lk[:, cb], bs)         # B_k D_k^{-1} B_k^T (lower part read)
+            Xn = jnp.einsum("ar,sr->as", X, Lk[:, rb])          # X_{k+1} = -X_k D_k^{-1} B_k^T
+            return Cn, Xn, Nk, sk, Lk, info
 
+        def skip():                                             # inertia decided: path 3, no eigenvalues
+            return (C, X, jnp.zeros((nb, nb), A.dtype), jnp.ones((nb,), A.dtype),
+                    jnp.zeros((st.b_rows.size, nb), A.dtype), jnp.array([0, 0, 3], jnp.int64))
+
+        dead = dead | (early_exit & decided(cnt, k - 1))
+        Cn, Xn, Nk, sk, Lk, info = lax.cond(_all_true(dead), skip, eliminate) if early_exit else eliminate()
+        cnt = cnt + jnp.stack([nb - info[0] - info[1], info[0], info[1]]) * (info[2] != 3)
+        return (Cn, Xn, cnt, dead), (Nk, sk, Lk, X, info)
+
+    cnt, dead = jnp.zeros(3, jnp.int64), jnp.zeros((), bool)
     if S > 1:
         X1 = jnp.zeros((st.b_rows.size, nb), A.dtype).at[:, cb].set(Bs[0]).T   # B_0^T: block 0 is the border
         C0 = jnp.zeros((st.b_rows.size, st.b_rows.size), dtype=A.dtype)
-        _, (Nf, sg, Lk, X, info) = lax.scan(body, (C0, X1), (jnp.arange(1, S), Bs[1:]) + tuple(v[1:] for v in pre))
+        (_, _, cnt, dead), (Nf, sg, Lk, X, info) = lax.scan(
+            body, (C0, X1, cnt, dead), (jnp.arange(1, S), Bs[1:]) + tuple(v[1:] for v in pre))
         nneg, nzero, path = info[:, 0], info[:, 1], info[:, 2].astype(jnp.int32)
         XN = jnp.einsum("kar,krj->kaj", X, Nf[:, rb])
         Z = jnp.einsum("kaj,kj,kbj->ab", XN, sg, XN)        # sum_k X_k D_k^{-1}[rb, rb] X_k^T
@@ -565,7 +618,14 @@ def _factor(st: KKTStructure, A, B, rel_zero_tol, fast):
     else:
         D0 = A[0]
     D0 = 0.5 * (D0 + D0.T)
-    N0, sg0, info0 = _pivot(D0, nbx, fast, rel_zero_tol)
+
+    def border():
+        return _pivot(D0, nbx, fast, rel_zero_tol)
+
+    def border_skip():
+        return jnp.zeros((nb, nb), A.dtype), jnp.ones((nb,), A.dtype), jnp.array([0, 0, 3], jnp.int64)
+
+    N0, sg0, info0 = lax.cond(_all_true(dead | decided(cnt, S - 1)), border_skip, border) if early_exit else border()
     nneg0, nzero0, path0 = info0[0], info0[1], info0[2].astype(jnp.int32)
     if S > 1:
         Nf, sg = jnp.concatenate([N0[None], Nf], axis=0), jnp.concatenate([sg0[None], sg], axis=0)
@@ -576,11 +636,12 @@ def _factor(st: KKTStructure, A, B, rel_zero_tol, fast):
     else:
         Nf, sg, L = N0[None], sg0[None], jnp.zeros((1, st.b_rows.size, nb), A.dtype)
         nneg_t, nzero_t, paths = nneg0, nzero0, path0[None]
-    npos = st.S * st.nb - nneg_t - nzero_t - st.n_pad_pos
+    npos = cnt[0] + nb - nneg0 - nzero0 - (path0 == 3) * nb - st.n_pad_pos
     return Factor(Nf, sg, L, npos, nneg_t - st.n_pad_neg, nzero_t, d), paths
 
 
-def factor(st: KKTStructure, A, B, rel_zero_tol: float | None = None, fast: bool = True) -> Factor:
+def factor(st: KKTStructure, A, B, rel_zero_tol: float | None = None, fast: bool = True,
+           early_exit: bool = False) -> Factor:
     """Block LDL^T of K with the exact inertia of K.
 
     K is first equilibrated (``equilibrate``). The blocks are eliminated in the order 1, 2, ...,
@@ -594,14 +655,21 @@ def factor(st: KKTStructure, A, B, rel_zero_tol: float | None = None, fast: bool
     quasi-definite fast path (``_quasidefinite_block``: Cholesky factorisations only); blocks
     where it fails are eigen-decomposed (``lax.cond``), so the inertia is exact in both cases.
     ``fast=False`` eigen-decomposes every block.
+
+    ``early_exit``: stop eliminating (``lax.cond``; pivot path 3) as soon as the blocks done so
+    far show that the inertia is not (n, m, 0): a zero eigenvalue, or more positive (negative)
+    ones than n (m). The counts are then those of the blocks done, which decide the IPM's
+    inertia correction (``inertia_ok`` false; ``nzero > 0`` when the first decisive block was
+    singular), and the factor must not be used to solve. For the IPM's inertia-correction
+    trials, most of which are rejected.
     """
-    return _factor(st, A, B, rel_zero_tol=rel_zero_tol, fast=fast)[0]
+    return _factor(st, A, B, rel_zero_tol=rel_zero_tol, fast=fast, early_exit=early_exit)[0]
 
 
-def pivot_paths(st: KKTStructure, A, B, fast: bool = True):
-    """(S,) how each pivot block was factored: 0 quasi-definite (Cholesky), 2 eigendecomposition.
-    Entry 0 is the border block. For diagnostics and benchmarks."""
-    return _factor(st, A, B, rel_zero_tol=None, fast=fast)[1]
+def pivot_paths(st: KKTStructure, A, B, fast: bool = True, early_exit: bool = False):
+    """(S,) how each pivot block was factored: 0 quasi-definite (Cholesky), 2 eigendecomposition,
+    3 skipped (``early_exit``). Entry 0 is the border block. For diagnostics and benchmarks."""
+    return _factor(st, A, B, rel_zero_tol=None, fast=fast, early_exit=early_exit)[1]
 
 
 def _solve_vec(st: KKTStructure, fac: Factor, X1t, r):
