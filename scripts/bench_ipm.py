@@ -2,13 +2,16 @@
 
     python scripts/bench_ipm.py [--tasks T1 T2 T3 T4] [--runs 3] [--batch 32] [--iters 40]
                                 [--out results/bench_ipm.json] [--skip-compile] [--skip-batch]
+                                [--skip-per-iteration] [--skip-spread]
 
 1. Per-iteration time at N = 100 (T1's dynamic stage-2 NLP from the 2S warm start, ``--iters``
    iterations, medians of ``--runs``): IPM and IPOPT, and their ratio.
 2. The whole 2S solve (A,F+C,2S) per task with each solver: stage statuses and iterations, solve
    time (compile excluded), objective relative difference and max |q_ipm - q_ipopt|; then stage 2
    alone from the same start (IPOPT's stage-1 solution) for both, to compare optima and
-   iteration counts on the same problem.
+   iteration counts on the same problem; then stage 1 with IPOPT under options that change only
+   the rounding of its linear solves (``ROUNDING_VARIANTS``) next to the IPM: IPOPT's own spread
+   of iteration counts and optima on these chaotic NLPs (``--skip-spread`` skips it).
 3. IPM compile time of the N = 100 NLP in fresh processes: cold (empty persistent JAX cache) and
    warm (the cache the cold run filled).
 4. Throughput of a ``vmap`` batch of ``--batch`` stage-1 (pseudo-static, N1 = 30) problems of T1
@@ -104,6 +107,28 @@ def stage2_same_start(task: str) -> dict:
     return out
 
 
+# IPOPT options that change only how MUMPS scales and pivots, i.e. the rounding of every step
+ROUNDING_VARIANTS = ({}, {"mumps_scaling": 0}, {"mumps_pivtol": 1e-5}, {"mumps_permuting_scaling": 0})
+
+
+def rounding_spread(task: str) -> dict:
+    """Stage 1 of 2S (the same NLP and start for all) with IPOPT under ``ROUNDING_VARIANTS`` and
+    with the IPM: the spread of IPOPT's own iteration counts and optima when only the rounding of
+    its linear solves changes, the yardstick for the IPM's count on these chaotic NLPs."""
+    first, _ = stage1_problem(task)
+    runs = []
+    for extra in ROUNDING_VARIANTS:
+        r = solve_ipopt(first.nlp, first.p, first.bounds, options={**strat.STAGE1_DEFAULTS, **extra})
+        runs.append({"options": extra, "status": r.status, "iterations": int(r.iterations), "objective": float(r.objective)})
+    r = solve_ipm(first.nlp, first.p, first.bounds, options=strat.STAGE1_DEFAULTS)
+    its = [v["iterations"] for v in runs]
+    objs = sorted({round(v["objective"], 6) for v in runs})
+    return {"ipopt": runs, "ipopt_iterations_min": min(its), "ipopt_iterations_max": max(its),
+            "ipopt_distinct_optima": objs,
+            "ipm": {"status": r.status, "iterations": int(r.iterations), "objective": float(r.objective)},
+            "ipm_over_ipopt_max": int(r.iterations) / max(its)}
+
+
 def whole_2s(task: str, runs: int) -> dict:
     res = {}
     sols = {}
@@ -193,6 +218,7 @@ def main():
     ap.add_argument("--skip-compile", action="store_true")
     ap.add_argument("--skip-batch", action="store_true")
     ap.add_argument("--skip-per-iteration", action="store_true")
+    ap.add_argument("--skip-spread", action="store_true")
     args = ap.parse_args()
     enable_compilation_cache()
     results = {"omp_num_threads": os.environ.get("OMP_NUM_THREADS")}
@@ -218,6 +244,14 @@ def main():
         a, b = r["ipm"], r["ipopt"]
         print(f"{task:5s} {a['status'][:34]:>34s} {a['iterations']:5d} {a['ms_per_iteration']:6.1f} | "
               f"{b['iterations']:9d} {b['ms_per_iteration']:6.1f} | {r['objective_rel_diff']:8.1e} {r['max_abs_dq_rad']:7.1e}")
+
+    if not args.skip_spread:
+        results["stage1_rounding_spread"] = {}
+        print(f"{'task':5s} {'stage 1: IPOPT its (rounding variants)':>40s} {'optima':>8s} | {'IPM its':>7s} {'objective':>10s}")
+        for task in args.tasks:
+            r = results["stage1_rounding_spread"][task] = rounding_spread(task)
+            print(f"{task:5s} {' '.join(str(v['iterations']) for v in r['ipopt']):>40s} {len(r['ipopt_distinct_optima']):8d} | "
+                  f"{r['ipm']['iterations']:7d} {r['ipm']['objective']:10.4g}")
 
     if not args.skip_compile:
         results["compile"] = c = compile_times()
