@@ -48,6 +48,10 @@ rows/columns (the variables shared by neighbouring stages), and the Schur update
 those; when the fill reaches only primal rows, R is the diagonal -D_c and the fill-independent
 part of the fast path is done for all blocks at once outside the scan (``_qd_diag_pre``). No
 n x n matrix is formed. A single-stage problem (all stages 0) is one dense block (the border).
+The IPM's inertia-correction trials stop eliminating once the blocks done already rule out
+inertia (n, m, 0) (``factor(..., early_exit=True)``, bound in ``_negative_caps``): on T1's stage 2
+at N = 100 (425 iterations), 80 of 866 trial factorisations stopped early, skipping 34-89 of the
+101 blocks; a trial short of the right inertia by a few eigenvalues still runs to the end.
 
 Cost (scripts/bench_kkt.py --baseline-kkt, T1 stage 2 at N = 100: S = 101, nb = 44; shared
 2-core machine at load 2.3-3.2, timings interleaved with the previous eigh-based version): factor
