@@ -52,6 +52,8 @@ The IPM's inertia-correction trials stop eliminating once the blocks done alread
 inertia (n, m, 0) (``factor(..., early_exit=True)``, bound in ``_negative_caps``): on T1's stage 2
 at N = 100 (425 iterations), 80 of 866 trial factorisations stopped early, skipping 34-89 of the
 101 blocks; a trial short of the right inertia by a few eigenvalues still runs to the end.
+Without an exit the factorisation costs what it did as a scan (interleaved: 7.40 against 7.49
+ms); a singular trial 6.37 against 10.45 ms.
 
 Cost (scripts/bench_kkt.py --baseline-kkt, T1 stage 2 at N = 100: S = 101, nb = 44; shared
 2-core machine at load 2.3-3.2, timings interleaved with the previous eigh-based version): factor
@@ -578,43 +580,50 @@ def _factor(st: KKTStructure, A, B, rel_zero_tol, fast, early_exit=False):
         """The inertia of blocks 1..k (counts, padding included) rules out inertia (n, m, 0)."""
         return (cnt[2] > 0) | (cnt[0] > pos_cap) | (cnt[1] > neg_cap[k])
 
-    def body(carry, inp):
-        # fill on block k's rows b_rows; (-1)^k X_k, border coupling; inertia of blocks 1..k-1
-        # (the caps grow with k: once decided, the exit is kept)
-        C, X, cnt, dead = carry
-        k, bs = inp[:2]
+    def block(Ak, C_):
+        D_ = Ak.at[rr].add(-C_)
+        return 0.5 * (D_ + D_.T)
 
-        def block(Ak, C_):
-            D_ = Ak.at[rr].add(-C_)
-            return 0.5 * (D_ + D_.T)
-
-        def eliminate():
-            if diag_r:
-                pb, qt, rd = inp[2:]
-                Nq, okq = _qd_diag_core(pb.at[rr].add(-C), qt, rd)
-                Nk, sk, info = _choose_pivot(okq, Nq, block, (A[k], C), rel_zero_tol, nb - nbx)
-            else:
-                Nk, sk, info = _pivot(block(A[k], C), nbx, fast, rel_zero_tol)
-            Lk = ((bs @ Nk[cb]) * sk) @ Nk.T                    # B_k D_k^{-1} on rows b_rows (r x nb)
-            Cn = jnp.einsum("ij,kj->ik", Lk[:, cb], bs)         # B_k D_k^{-1} B_k^T (lower part read)
-            Xn = jnp.einsum("ar,sr->as", X, Lk[:, rb])          # X_{k+1} = -X_k D_k^{-1} B_k^T
-            return Cn, Xn, Nk, sk, Lk, info
-
-        def skip():                                             # inertia decided: path 3, no eigenvalues
-            return (C, X, jnp.zeros((nb, nb), A.dtype), jnp.ones((nb,), A.dtype),
-                    jnp.zeros((st.b_rows.size, nb), A.dtype), jnp.array([0, 0, 3], jnp.int64))
-
-        dead = dead | (early_exit & decided(cnt, k - 1))
-        Cn, Xn, Nk, sk, Lk, info = lax.cond(_all_true(dead), skip, eliminate) if early_exit else eliminate()
-        cnt = cnt + jnp.stack([nb - info[0] - info[1], info[0], info[1]]) * (info[2] != 3)
-        return (Cn, Xn, cnt, dead), (Nk, sk, Lk, X, info)
+    def eliminate(k, C, X):
+        """Pivot block k (fill C on rows b_rows, border coupling (-1)^k X_k): its factor, inertia
+        info, L_{k+1,k} rows b_rows, and the fill passed on (C, X of block k+1)."""
+        bs = Bs[k]
+        if diag_r:
+            pb, qt, rd = (v[k] for v in pre)
+            Nq, okq = _qd_diag_core(pb.at[rr].add(-C), qt, rd)
+            Nk, sk, info = _choose_pivot(okq, Nq, block, (A[k], C), rel_zero_tol, nb - nbx)
+        else:
+            Nk, sk, info = _pivot(block(A[k], C), nbx, fast, rel_zero_tol)
+        Lk = ((bs @ Nk[cb]) * sk) @ Nk.T                    # B_k D_k^{-1} on rows b_rows (r x nb)
+        Cn = jnp.einsum("ij,kj->ik", Lk[:, cb], bs)         # B_k D_k^{-1} B_k^T (lower part read)
+        Xn = jnp.einsum("ar,sr->as", X, Lk[:, rb])          # X_{k+1} = -X_k D_k^{-1} B_k^T
+        return Cn, Xn, Nk, sk, Lk, info
 
     cnt, dead = jnp.zeros(3, jnp.int64), jnp.zeros((), bool)
     if S > 1:
-        X1 = jnp.zeros((st.b_rows.size, nb), A.dtype).at[:, cb].set(Bs[0]).T   # B_0^T: block 0 is the border
-        C0 = jnp.zeros((st.b_rows.size, st.b_rows.size), dtype=A.dtype)
-        (_, _, cnt, dead), (Nf, sg, Lk, X, info) = lax.scan(
-            body, (C0, X1, cnt, dead), (jnp.arange(1, S), Bs[1:]) + tuple(v[1:] for v in pre))
+        r_ = st.b_rows.size
+        X1 = jnp.zeros((r_, nb), A.dtype).at[:, cb].set(Bs[0]).T   # B_0^T: block 0 is the border
+        C0 = jnp.zeros((r_, r_), dtype=A.dtype)
+        # blocks not eliminated (early exit) keep these: no eigenvalues, path 3
+        outs = (jnp.zeros((S - 1, nb, nb), A.dtype), jnp.ones((S - 1, nb), A.dtype),
+                jnp.zeros((S - 1, r_, nb), A.dtype), jnp.zeros((S - 1, nb, r_), A.dtype),
+                jnp.broadcast_to(jnp.array([0, 0, 3], jnp.int64), (S - 1, 3)))
+
+        # a while loop, not a scan with a lax.cond per block (whose branch outputs cost ~7% of a
+        # factorisation on T1's stage 2): it stops once the blocks done rule out (n, m, 0)
+        def go_on(c):
+            k, dead = c[0], c[4]
+            return (k < S) & ~_all_true(dead) if early_exit else k < S
+
+        def step(c):
+            k, C, X, cnt, dead, outs = c
+            Cn, Xn, Nk, sk, Lk, info = eliminate(k, C, X)
+            outs = tuple(o.at[k - 1].set(v) for o, v in zip(outs, (Nk, sk, Lk, X, info)))
+            cnt = cnt + jnp.stack([nb - info[0] - info[1], info[0], info[1]])
+            return k + 1, Cn, Xn, cnt, dead | (early_exit & decided(cnt, k)), outs
+
+        _, _, _, cnt, dead, (Nf, sg, Lk, X, info) = lax.while_loop(
+            go_on, step, (jnp.ones((), jnp.int32), C0, X1, cnt, dead, outs))
         nneg, nzero, path = info[:, 0], info[:, 1], info[:, 2].astype(jnp.int32)
         XN = jnp.einsum("kar,krj->kaj", X, Nf[:, rb])
         Z = jnp.einsum("kaj,kj,kbj->ab", XN, sg, XN)        # sum_k X_k D_k^{-1}[rb, rb] X_k^T
