@@ -526,9 +526,10 @@ def _matvec(st: KKTStructure, A, B, u):
 
 @jax.custom_batching.custom_vmap
 def _all_true(b):
-    """``b``; under ``vmap`` one unbatched flag, all(b). A batched ``lax.cond`` predicate would run
-    both branches for every member: the early exit of ``factor`` then skips a block only where
-    every member has decided (the others' blocks are factored: the same decisions)."""
+    """``b``; under ``vmap`` one unbatched flag, all(b). With a batched predicate a ``while_loop``
+    selects its whole carry (the factor arrays) per member at every step, and a ``lax.cond`` runs
+    both branches: the early exit of ``factor`` stops only once every member has decided (the
+    others' blocks are factored: the same decisions)."""
     return b
 
 
@@ -609,7 +610,7 @@ def _factor(st: KKTStructure, A, B, rel_zero_tol, fast, early_exit=False):
                 jnp.zeros((S - 1, r_, nb), A.dtype), jnp.zeros((S - 1, nb, r_), A.dtype),
                 jnp.broadcast_to(jnp.array([0, 0, 3], jnp.int64), (S - 1, 3)))
 
-        # a while loop, not a scan with a lax.cond per block (whose branch outputs cost ~7% of a
+        # a while loop, not a scan with a lax.cond per block (whose branch outputs cost 3-5% of a
         # factorisation on T1's stage 2): it stops once the blocks done rule out (n, m, 0)
         def go_on(c):
             k, dead = c[0], c[4]
@@ -669,12 +670,13 @@ def factor(st: KKTStructure, A, B, rel_zero_tol: float | None = None, fast: bool
     where it fails are eigen-decomposed (``lax.cond``), so the inertia is exact in both cases.
     ``fast=False`` eigen-decomposes every block.
 
-    ``early_exit``: stop eliminating (``lax.cond``; pivot path 3) as soon as the blocks done so
-    far show that the inertia is not (n, m, 0): a zero eigenvalue, or more positive (negative)
-    ones than n (m). The counts are then those of the blocks done, which decide the IPM's
-    inertia correction (``inertia_ok`` false; ``nzero > 0`` when the first decisive block was
+    ``early_exit``: stop eliminating (the block loop ends; pivot path 3 for the blocks left) as
+    soon as the blocks done so far show that the inertia is not (n, m, 0): a zero eigenvalue,
+    more positive ones than n, or more negative ones than those blocks can hold
+    (``_negative_caps``). The counts are then those of the blocks done, which decide the IPM's
+    inertia correction (``inertia_ok`` false; ``nzero > 0`` when the deciding block was
     singular), and the factor must not be used to solve. For the IPM's inertia-correction
-    trials, most of which are rejected.
+    trials, about half of which are rejected.
     """
     return _factor(st, A, B, rel_zero_tol=rel_zero_tol, fast=fast, early_exit=early_exit)[0]
 
