@@ -14,7 +14,7 @@ S diagonal blocks A_k and sub-diagonal blocks B_k = K[stage k+1, stage k].
 
 Elimination order 1, 2, ..., S-1, 0 (an arrowhead order: block 0 is a border, eliminated last):
 
-    D_1 = A_1,   D_{k+1} = A_{k+1} - B_k D_k^{-1} B_k^T,   L_{k+1,k} = B_k D_k^{-1}   (lax.scan)
+    D_1 = A_1,   D_{k+1} = A_{k+1} - B_k D_k^{-1} B_k^T,   L_{k+1,k} = B_k D_k^{-1}   (lax.while_loop)
     X_1 = B_0^T, X_{k+1} = -X_k D_k^{-1} B_k^T,          L_{0,k} = X_k D_k^{-1}
     D_0 = A_0 - sum_k X_k D_k^{-1} X_k^T
 
@@ -46,7 +46,7 @@ kept as N_k diag(+-1) N_k^T, never formed (an nb^3 product per block), and the s
 matrix-vector products. B_k is nonzero only in a few local
 rows/columns (the variables shared by neighbouring stages), and the Schur update uses just
 those; when the fill reaches only primal rows, R is the diagonal -D_c and the fill-independent
-part of the fast path is done for all blocks at once outside the scan (``_qd_diag_pre``). No
+part of the fast path is done for all blocks at once outside the loop (``_qd_diag_pre``). No
 n x n matrix is formed. A single-stage problem (all stages 0) is one dense block (the border).
 The IPM's inertia-correction trials stop eliminating once the blocks done already rule out
 inertia (n, m, 0) (``factor(..., early_exit=True)``, bound in ``_negative_caps``): on T1's stage 2
@@ -415,7 +415,7 @@ def _qd_diag_core(Pt, Qt, Rd, gamma=QD_GAMMA):
         D_k^{-1} = M^T J M,    M = F^{-1} T^T = [[Lp^{-1}], [K21]] [I, E^T] + [[0, 0], [0, Ls^{-1}]],
 
     with F^{-1} = [[Lp^{-1}, 0], [K21, Ls^{-1}]], K21 = -Ls^{-1} W Lp^{-1}, and T = [[I, 0], [E, I]],
-    E = gamma Q~. Written for few XLA operations (each costs ~1-2 us inside ``lax.scan`` on
+    E = gamma Q~. Written for few XLA operations (each costs ~1-2 us inside the block loop on
     CPU); D_k^{-1} itself is not formed (an nb^3 product, a third of the block's work). Returns
     (N = M^T, ok): ok iff both Cholesky factorisations succeeded (inertia (nbx, nc, 0)); a failed
     one is NaN throughout, and so is then N."""
@@ -570,7 +570,7 @@ def _factor(st: KKTStructure, A, B, rel_zero_tol, fast, early_exit=False):
 
     # the fill of blocks 1.. reaches only rows b_rows; if those are all primal, the dual part of
     # their pivot blocks is the diagonal -D_c (the (2,2) block of K is diagonal) and the fast
-    # path's fill-independent work is done for all blocks at once, outside the scan
+    # path's fill-independent work is done for all blocks at once, outside the loop
     diag_r = fast and 0 < nbx < nb and bool(np.all(st.b_rows < nbx))
     pre = _qd_diag_pre(A, nbx) if diag_r else ()
 
@@ -584,6 +584,12 @@ def _factor(st: KKTStructure, A, B, rel_zero_tol, fast, early_exit=False):
     def block(Ak, C_):
         D_ = Ak.at[rr].add(-C_)
         return 0.5 * (D_ + D_.T)
+
+    def skipped():                  # a pivot block left by the early exit: no eigenvalues, path 3
+        return jnp.zeros((nb, nb), A.dtype), jnp.ones((nb,), A.dtype), jnp.array([0, 0, 3], jnp.int64)
+
+    def counts(info):               # (npos, nneg, nzero) of a pivot block from its info vector
+        return jnp.stack([nb - info[0] - info[1], info[0], info[1]]) * (info[2] != 3)
 
     def eliminate(k, C, X):
         """Pivot block k (fill C on rows b_rows, border coupling (-1)^k X_k): its factor, inertia
@@ -605,10 +611,9 @@ def _factor(st: KKTStructure, A, B, rel_zero_tol, fast, early_exit=False):
         r_ = st.b_rows.size
         X1 = jnp.zeros((r_, nb), A.dtype).at[:, cb].set(Bs[0]).T   # B_0^T: block 0 is the border
         C0 = jnp.zeros((r_, r_), dtype=A.dtype)
-        # blocks not eliminated (early exit) keep these: no eigenvalues, path 3
-        outs = (jnp.zeros((S - 1, nb, nb), A.dtype), jnp.ones((S - 1, nb), A.dtype),
-                jnp.zeros((S - 1, r_, nb), A.dtype), jnp.zeros((S - 1, nb, r_), A.dtype),
-                jnp.broadcast_to(jnp.array([0, 0, 3], jnp.int64), (S - 1, 3)))
+        # blocks not eliminated (early exit) keep these
+        N_s, sg_s, info_s = (jnp.broadcast_to(a, (S - 1,) + a.shape) for a in skipped())
+        outs = (N_s, sg_s, jnp.zeros((S - 1, r_, nb), A.dtype), jnp.zeros((S - 1, nb, r_), A.dtype), info_s)
 
         # a while loop, not a scan with a lax.cond per block (whose branch outputs cost 3-5% of a
         # factorisation on T1's stage 2): it stops once the blocks done rule out (n, m, 0)
@@ -620,12 +625,11 @@ def _factor(st: KKTStructure, A, B, rel_zero_tol, fast, early_exit=False):
             k, C, X, cnt, dead, outs = c
             Cn, Xn, Nk, sk, Lk, info = eliminate(k, C, X)
             outs = tuple(o.at[k - 1].set(v) for o, v in zip(outs, (Nk, sk, Lk, X, info)))
-            cnt = cnt + jnp.stack([nb - info[0] - info[1], info[0], info[1]])
+            cnt = cnt + counts(info)
             return k + 1, Cn, Xn, cnt, dead | (early_exit & decided(cnt, k)), outs
 
         _, _, _, cnt, dead, (Nf, sg, Lk, X, info) = lax.while_loop(
             go_on, step, (jnp.ones((), jnp.int32), C0, X1, cnt, dead, outs))
-        nneg, nzero, path = info[:, 0], info[:, 1], info[:, 2].astype(jnp.int32)
         XN = jnp.einsum("kar,krj->kaj", X, Nf[:, rb])
         Z = jnp.einsum("kaj,kj,kbj->ab", XN, sg, XN)        # sum_k X_k D_k^{-1}[rb, rb] X_k^T
         D0 = A[0] - Z
@@ -636,22 +640,17 @@ def _factor(st: KKTStructure, A, B, rel_zero_tol, fast, early_exit=False):
     def border():
         return _pivot(D0, nbx, fast, rel_zero_tol)
 
-    def border_skip():
-        return jnp.zeros((nb, nb), A.dtype), jnp.ones((nb,), A.dtype), jnp.array([0, 0, 3], jnp.int64)
-
-    N0, sg0, info0 = lax.cond(_all_true(dead | decided(cnt, S - 1)), border_skip, border) if early_exit else border()
-    nneg0, nzero0, path0 = info0[0], info0[1], info0[2].astype(jnp.int32)
+    # ``dead`` already holds the decision on blocks 1..S-1
+    N0, sg0, info0 = lax.cond(_all_true(dead), skipped, border) if early_exit else border()
+    npos, nneg, nzero = cnt + counts(info0)
     if S > 1:
         Nf, sg = jnp.concatenate([N0[None], Nf], axis=0), jnp.concatenate([sg0[None], sg], axis=0)
         L = jnp.concatenate([jnp.zeros((1, st.b_rows.size, nb), A.dtype), Lk], axis=0)
-        nneg_t = nneg0 + jnp.sum(nneg)
-        nzero_t = nzero0 + jnp.sum(nzero)
-        paths = jnp.concatenate([path0[None], path])
+        paths = jnp.concatenate([info0[None, 2], info[:, 2]]).astype(jnp.int32)
     else:
         Nf, sg, L = N0[None], sg0[None], jnp.zeros((1, st.b_rows.size, nb), A.dtype)
-        nneg_t, nzero_t, paths = nneg0, nzero0, path0[None]
-    npos = cnt[0] + nb - nneg0 - nzero0 - (path0 == 3) * nb - st.n_pad_pos
-    return Factor(Nf, sg, L, npos, nneg_t - st.n_pad_neg, nzero_t, d), paths
+        paths = info0[None, 2].astype(jnp.int32)
+    return Factor(Nf, sg, L, npos - st.n_pad_pos, nneg - st.n_pad_neg, nzero, d), paths
 
 
 def factor(st: KKTStructure, A, B, rel_zero_tol: float | None = None, fast: bool = True,
@@ -659,7 +658,7 @@ def factor(st: KKTStructure, A, B, rel_zero_tol: float | None = None, fast: bool
     """Block LDL^T of K with the exact inertia of K.
 
     K is first equilibrated (``equilibrate``). The blocks are eliminated in the order 1, 2, ...,
-    S-1 (``lax.scan``) and then 0: block 0 is a border (arrowhead elimination), coupled to the
+    S-1 (``lax.while_loop``) and then 0: block 0 is a border (arrowhead elimination), coupled to the
     others only through the fill X_k, on the rows ``b_rows`` of block k, that block 0 receives
     as they are eliminated. With D_k = A_k - B_{k-1} D_{k-1}^{-1} B_{k-1}^T (k >= 1),
 
