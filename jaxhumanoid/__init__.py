@@ -4,11 +4,8 @@ Importing the package turns on float64 in JAX (``jax_enable_x64``): every model,
 and solver function works in double precision.
 """
 
-import jax
-
-jax.config.update("jax_enable_x64", True)
-
-from jaxhumanoid.model.params import ContactParams, FootParams, Humanoid  # noqa: E402
+import jaxhumanoid.runtime  # noqa: F401  (float64 before any array is made)
+from jaxhumanoid.model.params import ContactParams, FootParams, Humanoid
 
 __all__ = ["ContactParams", "FootParams", "Humanoid"]
 __version__ = "0.1.0"

@@ -1183,7 +1183,7 @@ def main(argv=None):
     ap.add_argument("--eps", type=float, default=1e-5)
     ap.add_argument("--json", default=None, help="write the results (a list, one entry per task)")
     a = ap.parse_args(argv)
-    from jaxhumanoid.outputs.cli import enable_compilation_cache
+    from jaxhumanoid.runtime import enable_compilation_cache
 
     enable_compilation_cache()  # every IPOPT re-solve jits its callbacks: the disk cache saves the compile
     outs = []

@@ -38,7 +38,7 @@ import jaxhumanoid  # noqa: F401
 from jaxhumanoid.model.params import ContactParams
 from jaxhumanoid.ocp import transcription as tr
 from jaxhumanoid.ocp.scheme import parse_scheme
-from jaxhumanoid.outputs.cli import enable_compilation_cache
+from jaxhumanoid.runtime import enable_compilation_cache
 from jaxhumanoid.solvers.ipm import batch_solve_ipm, solve_ipm
 from jaxhumanoid.solvers.ipopt import solve_ipopt
 from jaxhumanoid.strategy import solve as strat
@@ -155,7 +155,7 @@ def whole_2s(task: str, runs: int) -> dict:
 _CHILD = r"""
 import json, sys
 import jaxhumanoid
-from jaxhumanoid.outputs.cli import enable_compilation_cache
+from jaxhumanoid.runtime import enable_compilation_cache
 from jaxhumanoid.ocp.scheme import parse_scheme
 from jaxhumanoid.solvers.ipm import solve_ipm
 from jaxhumanoid.strategy.problem import build_problem

@@ -23,7 +23,7 @@ import time
 import numpy as np
 
 from jaxhumanoid import sensitivity as S
-from jaxhumanoid.outputs.cli import enable_compilation_cache
+from jaxhumanoid.runtime import enable_compilation_cache
 from jaxhumanoid.strategy.problem import build_problem
 
 

@@ -21,7 +21,7 @@ import pytest
 pytest.importorskip("cyipopt")
 
 from jaxhumanoid import sensitivity as S  # noqa: E402
-from jaxhumanoid.outputs.cli import enable_compilation_cache  # noqa: E402
+from jaxhumanoid.runtime import enable_compilation_cache  # noqa: E402
 from jaxhumanoid.strategy.problem import build_problem  # noqa: E402
 
 TOL = S.FD_TOL  # 1e-4 relative, 2-norm

@@ -43,6 +43,9 @@ class NLP:
     var_stage: np.ndarray
     con_stage: np.ndarray
     name: str = "nlp"
+    # Compiled functions of the solvers and sensitivities, keyed by their owner and static
+    # options: they live and die with this NLP instead of in module-level caches.
+    cache: dict = dataclasses.field(default_factory=dict, init=False, repr=False, compare=False)
 
     @property
     def nnz_jac(self) -> int:

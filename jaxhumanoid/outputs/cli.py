@@ -9,6 +9,8 @@ import pathlib
 import sys
 import time
 
+from jaxhumanoid.runtime import enable_compilation_cache
+
 # Table II of the paper: (iterations, seconds) per task and scheme; None = failed.
 PAPER_TABLE2 = {
     "T1": {"E,F,1S": None, "A,F,1S": ("417", "1239"), "A,F+C,1S": ("287", "488"), "A,F+C,2S": ("272+31", "11+40=51")},
@@ -16,17 +18,6 @@ PAPER_TABLE2 = {
     "T3": {"E,F,1S": ("331", "691"), "A,F,1S": ("208", "742"), "A,F+C,1S": ("694", "1262"), "A,F+C,2S": ("47+129", "2+210=212")},
     "T4": {"E,F,1S": ("311", "520"), "A,F,1S": ("340", "1056"), "A,F+C,1S": ("360", "696"), "A,F+C,2S": ("175+27", "8+37=45")},
 }
-
-
-def enable_compilation_cache(path: str | None = None) -> str:
-    """Persistent JAX compilation cache, so a second process skips most compilation."""
-    import jax
-
-    cache = path or os.environ.get("JAXHUMANOID_CACHE", str(pathlib.Path.home() / ".cache" / "jaxhumanoid" / "jax"))
-    jax.config.update("jax_compilation_cache_dir", cache)
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
-    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
-    return cache
 
 
 def _ipopt_options(pairs) -> dict:
