@@ -15,13 +15,12 @@ import time
 import casadi as ca
 import jax
 import numpy as np
+from _bench import time_fn, write
 
 import jaxhumanoid  # noqa: F401
-from jaxhumanoid.solvers.casadi_backend import build_casadi_nlp
 from jaxhumanoid.strategy.problem import build_problem
 from jaxhumanoid.strategy.solve import solve
-
-from _bench import time_fn, write
+from jaxhumanoid.validation.casadi_backend import build_casadi_nlp
 
 
 def _time_casadi(fn, args, repeats):

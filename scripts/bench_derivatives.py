@@ -9,11 +9,10 @@ import argparse
 
 import jax
 import numpy as np
+from _bench import time_fn, write
 
 import jaxhumanoid  # noqa: F401
 from jaxhumanoid.strategy.problem import build_problem
-
-from _bench import time_fn, write
 
 
 def main():

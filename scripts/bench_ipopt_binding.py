@@ -15,12 +15,11 @@ from __future__ import annotations
 import argparse
 
 import numpy as np
+from _bench import write
 
 import jaxhumanoid  # noqa: F401
 from jaxhumanoid.solvers.ipopt import solve_cyipopt_reference, solve_ipopt
 from jaxhumanoid.strategy.problem import build_problem
-
-from _bench import write
 
 
 def main():

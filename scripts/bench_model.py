@@ -10,14 +10,13 @@ import argparse
 import jax
 import jax.numpy as jnp
 import numpy as np
+from _bench import time_fn, write
 
 import jaxhumanoid  # noqa: F401
 from jaxhumanoid.model import contact as ct
 from jaxhumanoid.model import dynamics as dyn
 from jaxhumanoid.model import foot as ft
 from jaxhumanoid.model.params import ContactParams, FootParams, Humanoid
-
-from _bench import time_fn, write
 
 
 def main():

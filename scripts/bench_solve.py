@@ -16,14 +16,13 @@ import os
 import re
 
 import numpy as np
+from _bench import write
 
 import jaxhumanoid  # noqa: F401
 from jaxhumanoid.ocp.scheme import parse_scheme
 from jaxhumanoid.solvers.ipopt import solve_ipopt
 from jaxhumanoid.strategy import solve as strat
 from jaxhumanoid.strategy.problem import build_problem
-
-from _bench import write
 
 
 def _timing(log: str, key: str) -> float:

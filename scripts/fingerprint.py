@@ -19,10 +19,9 @@ import pathlib
 import sys
 
 import numpy as np
+from bench_ipm import stage1_problem
 
 import jaxhumanoid  # noqa: F401  (x64)
-
-from bench_ipm import stage1_problem
 from jaxhumanoid.ocp import transcription as tr
 from jaxhumanoid.solvers.ipm import solve_ipm
 from jaxhumanoid.solvers.ipopt import solve_ipopt
@@ -51,7 +50,7 @@ def task_records(task: str) -> dict:
 
 
 def testproblem_records() -> dict:
-    from jaxhumanoid.solvers import testproblems as tp
+    from jaxhumanoid.validation import testproblems as tp
 
     cases = {**{k: f for k, f in tp.HS_PROBLEMS.items()}, "wachter_biegler": tp.wachter_biegler,
              "infeasible_disk": tp.infeasible_disk}

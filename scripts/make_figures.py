@@ -34,10 +34,10 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
 
     from jaxhumanoid.outputs.animation import animate
-    from jaxhumanoid.runtime import enable_compilation_cache
     from jaxhumanoid.outputs.plots import plot_solution
     from jaxhumanoid.outputs.progress import Progress
     from jaxhumanoid.outputs.timeline import contact_summary, plot_contact_timeline
+    from jaxhumanoid.runtime import enable_compilation_cache
     from jaxhumanoid.strategy.solve import solve
 
     enable_compilation_cache()

@@ -20,13 +20,12 @@ import argparse
 import os
 
 import numpy as np
+from _bench import write
 
 import jaxhumanoid  # noqa: F401
 from jaxhumanoid.ocp.tasks import get_task
 from jaxhumanoid.outputs.cli import _ipopt_options
 from jaxhumanoid.strategy import solve as strat
-
-from _bench import write
 
 
 def sample_weights(task: str, i: int, sigma: float) -> np.ndarray:

@@ -14,6 +14,7 @@ import argparse
 
 import jax
 import numpy as np
+from _bench import write
 
 import jaxhumanoid  # noqa: F401
 from jaxhumanoid.model import contact as ct
@@ -22,8 +23,6 @@ from jaxhumanoid.ocp import transcription as tr
 from jaxhumanoid.solvers.ipopt import solve_ipopt
 from jaxhumanoid.strategy.problem import build_problem
 from jaxhumanoid.strategy.solve import STAGE1_DEFAULTS, STAGE1_N, interpolate_full, reseat_for_contact
-
-from _bench import write
 
 VARIANTS = {
     "mu_init=0.1 (IPOPT default)": ({"mu_init": 1e-1}, None),

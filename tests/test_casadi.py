@@ -5,13 +5,12 @@ import numpy as np
 import pytest
 
 import jaxhumanoid  # noqa: F401  (float64)
-from jaxhumanoid.checks import cross_validate
 from jaxhumanoid.model.params import ContactParams
-from jaxhumanoid.checks import DEFAULT_CASES
-from jaxhumanoid.solvers.casadi_backend import build_casadi_nlp, solve_casadi
 from jaxhumanoid.solvers.ipopt import solve_ipopt
 from jaxhumanoid.strategy.problem import build_problem
 from jaxhumanoid.strategy.solve import reseat_for_contact
+from jaxhumanoid.validation.casadi_backend import build_casadi_nlp, solve_casadi
+from jaxhumanoid.validation.checks import DEFAULT_CASES, cross_validate
 
 CASES = list(DEFAULT_CASES)
 

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 import jaxhumanoid  # noqa: F401  (float64)
-from jaxhumanoid import checks
 from jaxhumanoid.model import dynamics as dyn
 from jaxhumanoid.ocp import transcription as tr
-from jaxhumanoid.strategy.problem import build_problem
+from jaxhumanoid.strategy.problem import build_problem, stage_problem
+from jaxhumanoid.validation import checks
 
 
 @pytest.fixture(scope="module")
@@ -108,7 +108,8 @@ def test_wrong_hessian_is_caught(problem):
 
 
 def test_table_rows_and_format():
-    rows = checks.check_table(cases=(("T1", "A,F+C,1S", True),), N=4, points=1)
+    problems = [(checks.case_label("T1", "A,F+C,1S", True, 4), stage_problem("T1", "A,F+C,1S", 4, True))]
+    rows = checks.check_table(problems, points=1)
     assert rows and all(r["ok"] for r in rows)
     assert {"case", "check", "quantity", "value", "tol", "ok"} <= set(rows[0])
     text = checks.format_table(rows)

@@ -7,7 +7,7 @@ import pytest
 import jaxhumanoid  # noqa: F401  (float64)
 import jax.numpy as jnp
 
-from jaxhumanoid.solvers import testproblems as tp
+from jaxhumanoid.validation import testproblems as tp
 from jaxhumanoid.solvers.ipm import IPMOptions, batch_solve_ipm, solve_ipm
 
 # degenerate HS013 (no constraint qualification at x*): IPOPT 3.14 and the IPM both stop at

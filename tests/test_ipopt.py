@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 import jaxhumanoid  # noqa: F401  (float64)
-from jaxhumanoid.solvers import testproblems as tp
 from jaxhumanoid.solvers.ipopt import solve_cyipopt_reference, solve_ipopt
 from jaxhumanoid.strategy.problem import build_problem
+from jaxhumanoid.validation import testproblems as tp
 
 
 def test_hs071_optimum_and_multipliers():

@@ -15,7 +15,7 @@ import pytest
 from PIL import Image
 
 from jaxhumanoid.outputs import animation, plots, timeline
-from jaxhumanoid.outputs.solution import Solution, StageStats
+from jaxhumanoid.strategy.solution import Solution, StageStats
 
 A = np.array([0.473, 0.422, 0.532, 0.282, 0.355])
 GEOMETRY = {"a": A, "ankle_height": 0.068, "a0f": 0.200, "a0b": 0.058, "active": np.array([1, 4, 5])}

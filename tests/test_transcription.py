@@ -1,7 +1,5 @@
 """Transcription, schemes, sparse derivatives and the end-to-end solve (issue: trajectory optimiser)."""
 
-import json
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -104,72 +102,4 @@ def test_start_postures_are_equilibria_with_foot_margin(key):
         gaps = np.asarray(kin.contact_gaps(pc.model, pc.foot, jnp.asarray(q)))
         others = [i - 1 for i in range(1, 6) if i not in task.active]
         assert np.all(gaps[others] > 0.01)  # clearance joints are off the ground
-        assert np.all((tasks.Q_MIN < q) & (q < tasks.Q_MAX))
-
-
-def test_cli_solve_two_stage_t1(tmp_path):
-    """The README's main job: T1 with A,F+C,2S converges, report.json and figures are written."""
-    from jaxhumanoid.outputs.cli import main
-    from jaxhumanoid.outputs.solution import Solution
-
-    out = tmp_path / "T1"
-    assert main(["--no-cache", "solve", "--task", "T1", "--out", str(out), "--quiet"]) == 0
-    report = json.loads((out / "report.json").read_text())
-    for key in ("task", "scheme", "solver", "success", "status", "iterations", "solve_time_s", "compile_time_s", "objective", "n_variables", "n_constraints", "max_constraint_violation"):
-        assert key in report
-    assert report["success"] and report["status"] == "Solve_Succeeded"
-    assert len(report["iterations"]) == 2 and report["n_variables"] == 2085
-    assert report["max_constraint_violation"] < 1e-6
-    sol = Solution.load(out)
-    goal = tasks.get_task("T1").goal
-    assert np.all(np.abs(sol.q[-1] - goal) <= tasks.GOAL_TOLERANCE + 1e-7)
-    assert np.all(sol.foot_margins > -1e-6)
-    assert np.allclose(sol.qd[-1], 0) and np.allclose(sol.qd[-2], 0)
-    for name in ("solution.png", "contacts.png"):
-        assert (out / name).stat().st_size > 10_000
-
-
-def test_cli_reports_bad_input_clearly(capsys):
-    from jaxhumanoid.outputs.cli import main
-
-    assert main(["--no-cache", "solve", "--task", "T7", "--out", "/tmp/never"]) == 2
-    assert "task" in capsys.readouterr().err
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("key", ["T2", "T3", "T4"])
-def test_two_stage_converges_on_every_task(key):
-    from jaxhumanoid.strategy.solve import solve
-
-    sol = solve(key, "A,F+C,2S")
-    assert sol.success, [s.status for s in sol.stages]
-
-
-def test_failed_stage_one_retries_with_the_fallback_and_counts_every_run(monkeypatch):
-    from jaxhumanoid.solvers.result import NLPResult
-    from jaxhumanoid.strategy import solve as strat
-
-    calls = []
-
-    def fake_run(solver, problem, x0, options, verbose):
-        calls.append((problem.layout.N, dict(options)))
-        fail = problem.layout.pseudo_static and len(calls) == 1
-        n, m = problem.nlp.n, problem.nlp.m
-        return NLPResult(x=np.asarray(x0, float), lam_g=np.zeros(m), z_l=np.zeros(n), z_u=np.zeros(n),
-                         status="Infeasible_Problem_Detected" if fail else "Solve_Succeeded", success=not fail,
-                         iterations=100 + len(calls), solve_time_s=1.0, compile_time_s=0.5, objective=1.0,
-                         max_constraint_violation=0.0)
-
-    monkeypatch.setattr(strat, "_run_solver", fake_run)
-    sol = strat.solve("T1", "A,F+C,2S", N=10, N1=5)
-    assert [c[0] for c in calls] == [5, 5, 10]
-    assert calls[0][1]["mu_init"] == strat.STAGE1_DEFAULTS["mu_init"] and "mu_strategy" not in calls[0][1]
-    assert calls[1][1]["mu_strategy"] == "adaptive"
-    first, second = sol.stages
-    assert first.attempts == 2 and first.success and first.status == "Solve_Succeeded"
-    assert first.iterations == 101 + 102 and first.solve_time_s == 2.0
-    assert second.attempts == 1 and second.iterations == 103
-    # the own IPM takes no IPOPT options: no fallback, the failure is reported as it is
-    calls.clear()
-    sol = strat.solve("T1", "A,F+C,2S", solver="ipm", N=10, N1=5)
-    assert len(calls) == 2 and sol.stages[0].status == "Infeasible_Problem_Detected" and sol.stages[0].attempts == 1
+        assert np.all((q > tasks.Q_MIN) & (q < tasks.Q_MAX))

@@ -84,7 +84,7 @@ def _smallest_last(adj, degree) -> np.ndarray:
     # Bucket queue on the remaining degree; after a removal the minimum drops by at most one.
     indptr, indices = adj.indptr, adj.indices
     deg = degree.astype(np.int64)
-    buckets = [set() for _ in range(int(deg.max(initial=0)) + 1)]
+    buckets: list[set[int]] = [set() for _ in range(int(deg.max(initial=0)) + 1)]
     for v, d in enumerate(deg):
         buckets[d].add(v)
     removed = np.zeros(deg.size, dtype=bool)

@@ -16,7 +16,8 @@ scatters the (K, nnz_local) values into its global pattern.
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import jax
 import jax.numpy as jnp

@@ -17,9 +17,8 @@ from __future__ import annotations
 
 import dataclasses
 from collections import defaultdict
-from typing import Callable
+from collections.abc import Callable
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 

@@ -24,7 +24,8 @@ stage-structured functions detect the pattern of one stage function instead.
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -72,6 +73,7 @@ def _union_nonzeros(fun, n: int, arg_sets, draw, shape_ok, expected: str, deriva
             if not np.all(np.isfinite(d)):
                 raise ValueError(f"fun: {name} is not finite at a sample point; choose points/center/scale where it is")
             mask = d != 0 if mask is None else mask | (d != 0)
+    assert mask is not None  # arg_sets is not empty and draw yields points
     return mask
 
 

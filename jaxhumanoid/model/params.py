@@ -8,10 +8,10 @@ unchecked.
 
 from __future__ import annotations
 
-import dataclasses
-
 import jax
 import numpy as np
+
+from jaxhumanoid.pytree import pytree_dataclass
 
 N_LINKS = 5
 LINK_NAMES = ("lower leg", "upper leg", "trunk + head", "upper arm", "forearm + hand")
@@ -41,30 +41,7 @@ def _check(owner: str, name: str, value, shape: tuple, positive: bool = True, no
     return arr
 
 
-def _pytree(cls):
-    """Frozen dataclass whose fields are all pytree leaves.
-
-    Unflattening bypasses ``__init__`` so that JAX can rebuild the class around tracers and
-    cotangents (a gradient with a negative entry is not an invalid model); validation runs only
-    when a user constructs one.
-    """
-    cls = dataclasses.dataclass(frozen=True)(cls)
-    names = tuple(f.name for f in dataclasses.fields(cls))
-
-    def flatten(obj):
-        return tuple(getattr(obj, n) for n in names), None
-
-    def unflatten(_, leaves):
-        obj = object.__new__(cls)
-        for n, v in zip(names, leaves):
-            object.__setattr__(obj, n, v)
-        return obj
-
-    jax.tree_util.register_pytree_node(cls, flatten, unflatten)
-    return cls
-
-
-@_pytree
+@pytree_dataclass
 class Humanoid:
     """Inertial parameters of the 5-link chain (Table I) and gravity.
 
@@ -89,7 +66,7 @@ class Humanoid:
             raise ValueError(f"Humanoid.c: each c_i must lie on its link (c_i <= a_i), got c={self.c}, a={self.a}")
 
     @classmethod
-    def paper(cls) -> "Humanoid":
+    def paper(cls) -> Humanoid:
         """Table I: adult man of 73 kg and 1.74 m (adapted by the paper from its ref. [14])."""
         return cls(
             a=np.array([0.473, 0.422, 0.532, 0.282, 0.355]),
@@ -104,7 +81,7 @@ class Humanoid:
         return self.m.sum()
 
 
-@_pytree
+@pytree_dataclass
 class ContactParams:
     """Ground contact laws (3)-(4).
 
@@ -122,17 +99,17 @@ class ContactParams:
             object.__setattr__(self, name, _check("ContactParams", name, getattr(self, name), ()))
 
     @classmethod
-    def nominal(cls) -> "ContactParams":
+    def nominal(cls) -> ContactParams:
         """Sec. II-D: kappa = 1e5 N/m, f0 = 200 N, xhat = 0.02 m/s, mu = 1."""
         return cls(kappa=1e5, f0=200.0, xhat=0.02, mu=1.0)
 
     @classmethod
-    def relaxed(cls) -> "ContactParams":
+    def relaxed(cls) -> ContactParams:
         """Sec. III-A, first stage of 2S: kappa = 5e4 N/m, f0 = 300 N, xhat = 0.1 m/s, mu = 1."""
         return cls(kappa=5e4, f0=300.0, xhat=0.1, mu=1.0)
 
 
-@_pytree
+@pytree_dataclass
 class FootParams:
     """Steady foot (Sec. II-E, Fig. 4).
 
@@ -150,5 +127,5 @@ class FootParams:
             object.__setattr__(self, name, _check("FootParams", name, getattr(self, name), ()))
 
     @classmethod
-    def paper(cls) -> "FootParams":
+    def paper(cls) -> FootParams:
         return cls(a0f=0.200, a0b=0.058, ankle_height=0.068)

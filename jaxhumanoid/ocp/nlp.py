@@ -17,14 +17,33 @@ Stage layout: ``var_stage[i]`` and ``con_stage[j]`` give the stage (time interva
 and constraint j. Every Jacobian entry couples a constraint of stage k only with variables of
 stages k and k+1, and every Hessian entry couples variables of stages differing by at most one,
 so the KKT matrix ordered stage by stage is block-tridiagonal.
+
+``NLP.jitted()`` gives the NLP's functions compiled once per NLP (``JittedNLP``); every solver and
+the sensitivities call these, so one NLP is traced once however many modules evaluate it.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any, NamedTuple
 
+import jax
 import numpy as np
+
+
+class JittedNLP(NamedTuple):
+    """The functions of one NLP under ``jax.jit``. ``fg`` and ``grad_jac`` fuse the pairs a
+    solver asks for at the same point (IPOPT: f and g at every trial point, grad f and the
+    Jacobian at every accepted one) into one dispatch each."""
+
+    fg: Callable[[Any, Any], Any]                   # (x, p) -> (f, g)
+    grad_jac: Callable[[Any, Any], Any]             # (x, p) -> (grad, jac_values)
+    hess: Callable[[Any, Any, Any, Any], Any]       # (x, lam, sigma, p) -> hess_values
+    f: Callable[[Any, Any], Any]
+    g: Callable[[Any, Any], Any]
+    grad: Callable[[Any, Any], Any]
+    jac_values: Callable[[Any, Any], Any]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -46,6 +65,20 @@ class NLP:
     # Compiled functions of the solvers and sensitivities, keyed by their owner and static
     # options: they live and die with this NLP instead of in module-level caches.
     cache: dict = dataclasses.field(default_factory=dict, init=False, repr=False, compare=False)
+
+    def jitted(self) -> JittedNLP:
+        """The NLP's functions compiled once for this NLP (kept in ``cache``)."""
+        if "jitted" not in self.cache:
+            self.cache["jitted"] = JittedNLP(
+                fg=jax.jit(lambda x, p: (self.f(x, p), self.g(x, p))),
+                grad_jac=jax.jit(lambda x, p: (self.grad(x, p), self.jac_values(x, p))),
+                hess=jax.jit(self.hess_values),
+                f=jax.jit(self.f),
+                g=jax.jit(self.g),
+                grad=jax.jit(self.grad),
+                jac_values=jax.jit(self.jac_values),
+            )
+        return self.cache["jitted"]
 
     @property
     def nnz_jac(self) -> int:

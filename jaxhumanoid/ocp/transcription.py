@@ -38,17 +38,12 @@ from jaxhumanoid.model import foot as ft
 from jaxhumanoid.model import kinematics as kin
 from jaxhumanoid.model.params import ContactParams, FootParams, Humanoid
 from jaxhumanoid.ocp import tasks as tasks_mod
-from jaxhumanoid.ocp.scheme import Scheme, parse_scheme
+from jaxhumanoid.pytree import pytree_dataclass
 
 N_Q = 5
 
 
-def _pytree(cls):
-    cls = dataclasses.dataclass(frozen=True)(cls)
-    return jax.tree_util.register_dataclass(cls, data_fields=[f.name for f in dataclasses.fields(cls)], meta_fields=[])
-
-
-@_pytree
+@pytree_dataclass
 class OCPParams:
     """Everything numeric the NLP depends on (a pytree: vmap and differentiate over it).
 
@@ -58,9 +53,9 @@ class OCPParams:
     model: Humanoid
     foot: FootParams
     contact: ContactParams
-    weights: jax.Array
-    T: jax.Array
-    q_start: jax.Array
+    weights: jax.Array | np.ndarray
+    T: jax.Array | float
+    q_start: jax.Array | np.ndarray
 
 
 @dataclasses.dataclass(frozen=True)
@@ -186,7 +181,7 @@ def interval_constraints(layout: Layout, za, zb, p: OCPParams):
     return interval_constraints_midpoint(layout, r, p)
 
 
-def interval_cost(layout: Layout, za, zb, p: OCPParams, last_u: bool):
+def interval_cost(layout: Layout, za, zb, p: OCPParams, last_u):
     """Objective (7) terms of interval k. ``last_u``: the torque-rate term is absent (k = N-1)."""
     sl = layout.stage_slices()
     h = p.T / layout.N

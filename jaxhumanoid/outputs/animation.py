@@ -9,6 +9,7 @@ Frames are evenly spaced in time (at most ``max_frames``), so files stay small.
 from __future__ import annotations
 
 import pathlib
+from typing import Any
 
 import numpy as np
 from matplotlib.animation import FFMpegWriter, PillowWriter, writers
@@ -46,12 +47,12 @@ def frame_times(t, max_frames: int) -> np.ndarray:
 def _writer(path: pathlib.Path, fps: float):
     suffix = path.suffix.lower()
     if suffix == ".gif":
-        return PillowWriter(fps=fps)
+        return PillowWriter(fps=fps)  # type: ignore[arg-type]  # a float rate works; the stubs say int
     if suffix == ".mp4":
         if not writers.is_available("ffmpeg"):
             raise RuntimeError(f"cannot write {path}: MP4 needs ffmpeg on PATH, which was not found; "
                                "install ffmpeg or ask for a .gif")
-        return FFMpegWriter(fps=fps)
+        return FFMpegWriter(fps=fps)  # type: ignore[arg-type]
     raise ValueError(f"path: expected a file name ending in .gif or .mp4, got {str(path)!r}")
 
 
@@ -124,7 +125,7 @@ def animate(sol, path, fps: float = 15.0, max_frames: int = 60, show_forces: boo
         active, f_contact, foot, cop = _forces_at(sol, times)
         largest = max(float(np.abs(f_contact).max(initial=0.0)), float(np.abs(foot).max(initial=0.0)), 1.0)
         scale = force_scale if force_scale is not None else ARROW_LENGTH_M / largest
-        quiver = {"angles": "xy", "scale_units": "xy", "scale": 1.0 / scale, "width": 0.006, "zorder": 5}
+        quiver: dict[str, Any] = {"angles": "xy", "scale_units": "xy", "scale": 1.0 / scale, "width": 0.006, "zorder": 5}
         contact_q = ax.quiver(np.zeros(active.size), np.zeros(active.size), np.zeros(active.size),
                               np.zeros(active.size), color=CONTACT_ARROW_COLOR, **quiver)
         foot_q = ax.quiver([0.0], [0.0], [0.0], [0.0], color=FOOT_ARROW_COLOR, **quiver)
@@ -139,7 +140,7 @@ def animate(sol, path, fps: float = 15.0, max_frames: int = 60, show_forces: boo
     with writer.saving(fig, str(path), dpi):
         for k, tk in enumerate(times):
             update_stick(figure, pts[k])
-            if ghost is not None:
+            if ghost is not None and warm is not None:
                 update_stick(ghost, warm[k])
             if arrows is not None:
                 at = pts[k, active + 1] if active.size else np.zeros((0, 2))

@@ -4,15 +4,22 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import pathlib
 import sys
 import time
 
+from jaxhumanoid.ocp.scheme import TABLE2_SCHEMES
+from jaxhumanoid.outputs import plots, timeline
+from jaxhumanoid.outputs.animation import animate
+from jaxhumanoid.outputs.progress import Progress
 from jaxhumanoid.runtime import enable_compilation_cache
+from jaxhumanoid.strategy.problem import stage_problem
+from jaxhumanoid.strategy.solution import Solution
+from jaxhumanoid.strategy.solve import solve
+from jaxhumanoid.validation import checks
 
 # Table II of the paper: (iterations, seconds) per task and scheme; None = failed.
-PAPER_TABLE2 = {
+PAPER_TABLE2: dict[str, dict[str, tuple[str, str] | None]] = {
     "T1": {"E,F,1S": None, "A,F,1S": ("417", "1239"), "A,F+C,1S": ("287", "488"), "A,F+C,2S": ("272+31", "11+40=51")},
     "T2": {"E,F,1S": None, "A,F,1S": ("242", "735"), "A,F+C,1S": ("193", "382"), "A,F+C,2S": ("93+51", "4+81=85")},
     "T3": {"E,F,1S": ("331", "691"), "A,F,1S": ("208", "742"), "A,F+C,1S": ("694", "1262"), "A,F+C,2S": ("47+129", "2+210=212")},
@@ -37,20 +44,14 @@ def _ipopt_options(pairs) -> dict:
     return opts
 
 
-def _write_figures(sol, out: pathlib.Path, animate: bool):
-    from jaxhumanoid.outputs import plots, timeline
-
+def _write_figures(sol, out: pathlib.Path, with_animation: bool):
     plots.plot_solution(sol, path=out / "solution.png")
     timeline.plot_contact_timeline(sol, path=out / "contacts.png")
-    if animate:
-        from jaxhumanoid.outputs.animation import animate as make_gif
-
-        make_gif(sol, out / "animation.gif")
+    if with_animation:
+        animate(sol, out / "animation.gif")
 
 
 def _save(sol, out: pathlib.Path) -> dict:
-    from jaxhumanoid.outputs import timeline
-
     sol.save(out)
     report = json.loads((out / "report.json").read_text())
     report["contacts"] = timeline.contact_summary(sol)
@@ -59,8 +60,6 @@ def _save(sol, out: pathlib.Path) -> dict:
 
 
 def cmd_solve(args) -> int:
-    from jaxhumanoid.strategy.solve import solve
-
     out = pathlib.Path(args.out)
     t0 = time.perf_counter()
     sol = solve(args.task, args.scheme, solver=args.solver, N=args.N, T=args.T, options=_ipopt_options(args.ipopt_option), verbose=args.verbose)
@@ -94,10 +93,6 @@ def _table2_markdown(records) -> str:
 
 
 def cmd_table2(args) -> int:
-    from jaxhumanoid.ocp.scheme import TABLE2_SCHEMES
-    from jaxhumanoid.outputs.progress import Progress
-    from jaxhumanoid.strategy.solve import solve
-
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     records = []
@@ -122,9 +117,6 @@ def cmd_table2(args) -> int:
 
 
 def cmd_animate(args) -> int:
-    from jaxhumanoid.outputs.animation import animate
-    from jaxhumanoid.outputs.solution import Solution
-
     sol = Solution.load(args.dir)
     path = animate(sol, pathlib.Path(args.dir) / args.name)
     if not args.quiet:
@@ -133,8 +125,6 @@ def cmd_animate(args) -> int:
 
 
 def cmd_check(args) -> int:
-    from jaxhumanoid import checks
-
     tasks = [args.task] if args.task else ["T1", "T2", "T3", "T4"]
     if args.sensitivities:
         from jaxhumanoid import sensitivity
@@ -146,7 +136,10 @@ def cmd_check(args) -> int:
         schemes = [args.scheme] if args.scheme else ["E,F", "A,F", "A,F+C"]
         cases = [(t, f"{s},1S", False) for t in tasks for s in schemes]
         cases += [(t, "A,F+C,2S", True) for t in tasks]  # the pseudo-static stage-1 problem
-        rows = results = checks.check_table(cases, N=args.N or 8, points=args.points)
+        N = args.N or 8
+        problems = ((checks.case_label(t, s, ps, N), stage_problem(t, s, N, ps)) for t, s, ps in cases)
+        rows = checks.check_table(problems, points=args.points)
+        results = {"rows": rows}
     print(checks.format_table(rows))
     if args.out:
         pathlib.Path(args.out).write_text(json.dumps(results, indent=2, default=float) + "\n")

@@ -13,6 +13,7 @@ theta_l = q_1 + ... + q_l from +x, toes at x = -a0f, heel at x = +a0b). Figures 
 from __future__ import annotations
 
 import pathlib
+from typing import Any
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -42,7 +43,7 @@ def geometry_of(sol) -> dict[str, np.ndarray]:
     a = np.asarray(geo["a"], dtype=float)
     if a.shape != (5,):
         raise ValueError(f"sol.geometry['a']: expected 5 link lengths, got shape {a.shape}")
-    out = {"a": a}
+    out: dict[str, Any] = {"a": a}
     for key in GEOMETRY_KEYS[1:]:
         out[key] = float(np.asarray(geo[key]))
     return out

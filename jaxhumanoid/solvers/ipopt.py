@@ -10,11 +10,11 @@ intermediate callback.
 from __future__ import annotations
 
 import contextlib
-import functools
 import os
 import tempfile
 import time
 
+import cyipopt
 import jax
 import numpy as np
 
@@ -78,22 +78,6 @@ def captured_log(opts: dict, prefix: str = "ipopt_"):
             os.remove(tmp)
 
 
-# Jitted once per NLP (static, hashed by identity), so re-solves of one problem skip tracing.
-@functools.partial(jax.jit, static_argnums=0)
-def _fg(nlp: NLP, x, p):
-    return nlp.f(x, p), nlp.g(x, p)
-
-
-@functools.partial(jax.jit, static_argnums=0)
-def _dj(nlp: NLP, x, p):
-    return nlp.grad(x, p), nlp.jac_values(x, p)
-
-
-@functools.partial(jax.jit, static_argnums=0)
-def _hess(nlp: NLP, x, lam, sigma, p):
-    return nlp.hess_values(x, lam, sigma, p)
-
-
 class _Callbacks:
     """What IPOPT calls, as jitted JAX functions fed numpy arrays.
 
@@ -104,8 +88,9 @@ class _Callbacks:
 
     def __init__(self, nlp: NLP, p):
         self.p = p
-        self._pairs = {"fg": functools.partial(_fg, nlp), "dj": functools.partial(_dj, nlp)}
-        self._hess = functools.partial(_hess, nlp)
+        jitted = nlp.jitted()
+        self._pairs = {"fg": jitted.fg, "dj": jitted.grad_jac}
+        self._hess = jitted.hess
         self._cache: dict = {}
         self.history: dict[str, list] = {k: [] for k in ("objective", "inf_pr", "inf_du", "mu", "d_norm", "regularization", "alpha_du", "alpha_pr", "ls_trials")}
         self.eval_time = 0.0
@@ -207,9 +192,8 @@ def solve_cyipopt_reference(nlp: NLP, p, bounds: Bounds, x0=None, options: dict 
     For cross-checks and benchmarks of ``solve_ipopt`` only: same IPOPT build, so the iterates
     must agree to round-off. Returns (x, info, solve_time_s) as cyipopt gives them.
     """
-    import cyipopt
-
-    f, g, grad, jac, hess = (jax.jit(fn) for fn in (nlp.f, nlp.g, nlp.grad, nlp.jac_values, nlp.hess_values))
+    jitted = nlp.jitted()
+    f, g, grad, jac, hess = jitted.f, jitted.g, jitted.grad, jitted.jac_values, jitted.hess
     x0 = np.asarray(bounds.x0 if x0 is None else x0, dtype=float)
 
     class _Problem:

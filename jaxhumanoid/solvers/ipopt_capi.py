@@ -22,6 +22,7 @@ import glob
 import os
 from functools import lru_cache
 
+import cyipopt
 import numpy as np
 
 _idx = ctypes.c_int  # ipindex: IPOPT's default 32-bit build, as in the wheel
@@ -38,8 +39,7 @@ INTERMEDIATE = _cb(ctypes.c_bool, _idx, _idx, _num, _num, _num, _num, _num, _num
 
 
 def _library_path() -> str:
-    import cyipopt  # the wheel that ships libipopt next to itself
-
+    # the cyipopt wheel ships libipopt next to itself
     site = os.path.dirname(os.path.dirname(os.path.abspath(cyipopt.__file__)))
     found = sorted(glob.glob(os.path.join(site, "cyipopt*.libs", "libipopt*.so*")) + glob.glob(os.path.join(site, "cyipopt*", ".dylibs", "libipopt*.dylib")))
     if not found and os.path.exists("/proc/self/maps"):  # a cyipopt built against a system IPOPT

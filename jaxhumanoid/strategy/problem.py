@@ -75,3 +75,10 @@ def build_problem(
         gu=np.where(kinds == 0, 0.0, np.inf),
     )
     return Problem(task, scheme, layout, nlp, bounds, p)
+
+
+def stage_problem(task, scheme, N: int, pseudo_static: bool) -> Problem:
+    """The NLP of one stage: the dynamic problem (6) with the nominal contact law, or the
+    pseudo-static problem (8) of stage 1 with the relaxed law (``ContactParams.relaxed``)."""
+    contact = ContactParams.relaxed() if pseudo_static else None
+    return build_problem(task, scheme, N=N, pseudo_static=pseudo_static, contact=contact)

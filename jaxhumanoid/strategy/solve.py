@@ -21,9 +21,12 @@ from jaxhumanoid.model.params import ContactParams
 from jaxhumanoid.ocp import transcription as tr
 from jaxhumanoid.ocp.scheme import parse_scheme
 from jaxhumanoid.ocp.tasks import get_task
-from jaxhumanoid.outputs.solution import Solution, StageStats
+from jaxhumanoid.solvers.ipm import solve_ipm
+from jaxhumanoid.solvers.ipopt import solve_ipopt
 from jaxhumanoid.solvers.result import NLPResult
 from jaxhumanoid.strategy.problem import Problem, build_problem
+from jaxhumanoid.strategy.solution import Solution, StageStats
+from jaxhumanoid.validation.casadi_backend import solve_casadi
 
 SOLVERS = ("ipopt", "ipm", "casadi")
 STAGE1_N = 30
@@ -71,16 +74,10 @@ def reseat_for_contact(p: tr.OCPParams, q, active, new_contact: ContactParams, i
 
 def _run_solver(solver: str, problem: Problem, x0, options, verbose) -> NLPResult:
     if solver == "ipopt":
-        from jaxhumanoid.solvers.ipopt import solve_ipopt
-
         return solve_ipopt(problem.nlp, problem.p, problem.bounds, x0=x0, options=options, verbose=verbose)
     if solver == "ipm":
-        from jaxhumanoid.solvers.ipm import solve_ipm
-
         return solve_ipm(problem.nlp, problem.p, problem.bounds, x0=x0, options=options)
     if solver == "casadi":
-        from jaxhumanoid.solvers.casadi_backend import solve_casadi
-
         return solve_casadi(problem, x0=x0, options=options, verbose=verbose)
     raise ValueError(f"solver: {solver!r} not in {SOLVERS}")
 

@@ -1,5 +1,5 @@
 """The NLP (7) rebuilt in CasADi SX and solved with ``casadi.nlpsol('ipopt')``: a second, independent
-implementation for cross-validation (``jaxhumanoid.checks``) and a reference solver.
+implementation for cross-validation (``jaxhumanoid.validation.checks``) and a reference solver.
 
 Decision: the model equations are derived here independently of ``jaxhumanoid.model``; only the
 task/scheme/layout definitions (``ocp.transcription.Layout``: free-variable order, constraint order
@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -93,7 +94,7 @@ def _model(nb: _Numbers) -> _Model:
     """Lagrangian mechanics of the chain, derived symbolically (see module docstring)."""
     q, qd, qdd = ca.SX.sym("q", N_Q), ca.SX.sym("qd", N_Q), ca.SX.sym("qdd", N_Q)
     theta, thetad = ca.cumsum(q), ca.cumsum(qd)
-    joint = ca.vertcat(0.0, nb.ankle_height)
+    joint: Any = ca.vertcat(0.0, nb.ankle_height)  # DM, then SX once a joint angle enters
     joints, coms = [], []
     for l in range(N_Q):
         e = ca.vertcat(ca.cos(theta[l]), ca.sin(theta[l]))
@@ -231,7 +232,8 @@ def build_casadi_nlp(problem) -> CasadiNLP:
             else:
                 entries.append(ca.SX(fixed[k, j]))
         stages.append(ca.vertcat(*entries))
-    cons, cost = [], 0
+    cons: list = []
+    cost: Any = 0
     for k in range(layout.N):
         c_k, l_k = _interval(nb, model, layout, stages[k], stages[k + 1], last=k == layout.N - 1)
         cons.append(c_k)
@@ -286,9 +288,8 @@ def solve_casadi(problem, x0=None, options: dict | None = None, verbose: bool = 
     cnlp = build_casadi_nlp(problem)
     with captured_log(opts, prefix="casadi_ipopt_") as log:
         try:
-            solver = ca.nlpsol(
-                "solver", "ipopt", {"x": cnlp.x, "f": cnlp.f, "g": cnlp.g}, {"ipopt": opts, "print_time": False, "error_on_fail": False}
-            )
+            nlpsol_opts: dict = {"ipopt": opts, "print_time": False, "error_on_fail": False}
+            solver = ca.nlpsol("solver", "ipopt", {"x": cnlp.x, "f": cnlp.f, "g": cnlp.g}, nlpsol_opts)
         except RuntimeError as err:
             raise ValueError(f"options: CasADi/IPOPT rejected the options {sorted(opts)} ({err})") from err
         build_time = time.perf_counter() - t0
@@ -303,7 +304,7 @@ def solve_casadi(problem, x0=None, options: dict | None = None, verbose: bool = 
     g_val = np.asarray(sol["g"]).ravel()
     status = str(stats.get("return_status", "Unknown_Status"))
     iters = stats.get("iterations", {})
-    history = {ours: np.asarray(iters.get(theirs, [])) for ours, theirs in _HISTORY_KEYS.items()}
+    history: dict = {ours: np.asarray(iters.get(theirs, [])) for ours, theirs in _HISTORY_KEYS.items()}
     history["eval_time_s"] = float(sum(stats.get(f"t_wall_{k}", 0.0) for k in _EVAL_STATS))
     return NLPResult(
         x=x,

@@ -101,14 +101,14 @@ class Solution:
         arrays = {k: np.asarray(getattr(self, k)) for k in ARRAY_FIELDS}
         if self.warm_start is not None:
             arrays.update({f"warm_start_{k}": np.asarray(v) for k, v in self.warm_start.items()})
-        np.savez(out / "solution.npz", **arrays)
+        np.savez(out / "solution.npz", **arrays)  # type: ignore[arg-type]  # numpy stubs type **kwds as bool
         meta = self.report()
         meta["geometry"] = {k: np.asarray(v).tolist() for k, v in self.geometry.items()}
         (out / "report.json").write_text(json.dumps(meta, indent=2) + "\n")
         return out
 
     @classmethod
-    def load(cls, out_dir) -> "Solution":
+    def load(cls, out_dir) -> Solution:
         out = pathlib.Path(out_dir)
         report_path, npz_path = out / "report.json", out / "solution.npz"
         for path in (report_path, npz_path):

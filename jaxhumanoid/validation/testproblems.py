@@ -17,8 +17,7 @@ where only a local solution is known).
 
 from __future__ import annotations
 
-import functools
-from typing import Callable
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
@@ -276,11 +275,11 @@ def cartpole_swingup(N: int = 50, P: int = 1, T: float = 4.0, u_max: float = 20.
     xu[:nx] = np.tile(x_init, P)
     # initial guess: linear interpolation of the angle, zero controls
     t = np.linspace(0.0, 1.0, N + 1)
-    x0 = []
+    nodes = []
     for k in range(N + 1):
         xs = np.tile(np.array([0.0, np.pi * t[k], 0.0, np.pi / T]), P)
-        x0.append(xs if k == N else np.concatenate([xs, np.zeros(P)]))
-    x0 = np.concatenate(x0)
+        nodes.append(xs if k == N else np.concatenate([xs, np.zeros(P)]))
+    x0 = np.concatenate(nodes)
     x0[-nx:] = np.tile(x_goal, P)
     gl = np.tile(np.concatenate([np.zeros(nx), np.full(P, -2.5)]), N)
     gu = np.tile(np.concatenate([np.zeros(nx), np.full(P, 2.5)]), N)

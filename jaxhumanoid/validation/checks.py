@@ -18,7 +18,7 @@ import jax
 import numpy as np
 import scipy.sparse as sp
 
-from jaxhumanoid.solvers import casadi_backend as cb
+from jaxhumanoid.validation import casadi_backend as cb
 
 CROSS_TOL = 1e-10
 FD_TOL = 1e-4
@@ -216,17 +216,17 @@ DEFAULT_CASES = (
 )
 
 
-def check_table(cases=DEFAULT_CASES, N: int = 8, points: int = 2, seed: int = 0) -> list[dict]:
-    """Run both checks on each (task, scheme, pseudo_static) case; rows for a printed table
-    (``jaxhumanoid check``): case, check, quantity, value, tol, ok."""
-    from jaxhumanoid.model.params import ContactParams
-    from jaxhumanoid.strategy.problem import build_problem
+def case_label(task: str, scheme: str, pseudo_static: bool, N: int) -> str:
+    """The row label of one check case."""
+    return f"{task} {scheme}{' pseudo-static' if pseudo_static else ''} N={N}"
 
+
+def check_table(problems, points: int = 2, seed: int = 0) -> list[dict]:
+    """Run both checks on each ``(case, problem)`` pair; rows for a printed table
+    (``jaxhumanoid check``): case, check, quantity, value, tol, ok. The caller builds the
+    problems (``strategy.problem.build_problem``), e.g. for each of ``DEFAULT_CASES``."""
     rows = []
-    for task, scheme, pseudo in cases:
-        contact = ContactParams.relaxed() if pseudo else None
-        problem = build_problem(task, scheme, N=N, pseudo_static=pseudo, contact=contact)
-        case = f"{task} {scheme}{' pseudo-static' if pseudo else ''} N={N}"
+    for case, problem in problems:
         for row in cross_validate(problem, points=points, seed=seed) + finite_difference_check(problem, seed=seed):
             rows.append({"case": case, **dataclasses.asdict(row), "ok": row.ok})
     return rows

@@ -1,0 +1,33 @@
+"""The command line: the README's main job end to end, and bad input reported before any work."""
+
+import json
+
+import numpy as np
+
+from jaxhumanoid.ocp import tasks
+from jaxhumanoid.outputs.cli import main
+from jaxhumanoid.strategy.solution import Solution
+
+
+def test_cli_solve_two_stage_t1(tmp_path):
+    """The README's main job: T1 with A,F+C,2S converges, report.json and figures are written."""
+    out = tmp_path / "T1"
+    assert main(["--no-cache", "solve", "--task", "T1", "--out", str(out), "--quiet"]) == 0
+    report = json.loads((out / "report.json").read_text())
+    for key in ("task", "scheme", "solver", "success", "status", "iterations", "solve_time_s", "compile_time_s", "objective", "n_variables", "n_constraints", "max_constraint_violation"):
+        assert key in report
+    assert report["success"] and report["status"] == "Solve_Succeeded"
+    assert len(report["iterations"]) == 2 and report["n_variables"] == 2085
+    assert report["max_constraint_violation"] < 1e-6
+    sol = Solution.load(out)
+    goal = tasks.get_task("T1").goal
+    assert np.all(np.abs(sol.q[-1] - goal) <= tasks.GOAL_TOLERANCE + 1e-7)
+    assert np.all(sol.foot_margins > -1e-6)
+    assert np.allclose(sol.qd[-1], 0) and np.allclose(sol.qd[-2], 0)
+    for name in ("solution.png", "contacts.png"):
+        assert (out / name).stat().st_size > 10_000
+
+
+def test_cli_reports_bad_input_clearly(capsys):
+    assert main(["--no-cache", "solve", "--task", "T7", "--out", "/tmp/never"]) == 2
+    assert "task" in capsys.readouterr().err

@@ -1,0 +1,41 @@
+"""The 1S/2S strategies: stage hand-over, the stage-1 fallbacks, convergence on every task (slow)."""
+
+import numpy as np
+import pytest
+
+from jaxhumanoid.solvers.result import NLPResult
+from jaxhumanoid.strategy import solve as strat
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("key", ["T2", "T3", "T4"])
+def test_two_stage_converges_on_every_task(key):
+    sol = strat.solve(key, "A,F+C,2S")
+    assert sol.success, [s.status for s in sol.stages]
+
+
+def test_failed_stage_one_retries_with_the_fallback_and_counts_every_run(monkeypatch):
+    calls = []
+
+    def fake_run(solver, problem, x0, options, verbose):
+        calls.append((problem.layout.N, dict(options)))
+        fail = problem.layout.pseudo_static and len(calls) == 1
+        n, m = problem.nlp.n, problem.nlp.m
+        return NLPResult(x=np.asarray(x0, float), lam_g=np.zeros(m), z_l=np.zeros(n), z_u=np.zeros(n),
+                         status="Infeasible_Problem_Detected" if fail else "Solve_Succeeded", success=not fail,
+                         iterations=100 + len(calls), solve_time_s=1.0, compile_time_s=0.5, objective=1.0,
+                         max_constraint_violation=0.0)
+
+    monkeypatch.setattr(strat, "_run_solver", fake_run)
+    sol = strat.solve("T1", "A,F+C,2S", N=10, N1=5)
+    assert [c[0] for c in calls] == [5, 5, 10]
+    assert calls[0][1]["mu_init"] == strat.STAGE1_DEFAULTS["mu_init"] and "mu_strategy" not in calls[0][1]
+    assert calls[1][1]["mu_strategy"] == "adaptive"
+    first, second = sol.stages
+    assert first.attempts == 2 and first.success and first.status == "Solve_Succeeded"
+    assert first.iterations == 101 + 102 and first.solve_time_s == 2.0
+    assert second.attempts == 1 and second.iterations == 103
+    # the own IPM takes no IPOPT options: no fallback, the failure is reported as it is
+    calls.clear()
+    sol = strat.solve("T1", "A,F+C,2S", solver="ipm", N=10, N1=5)
+    assert len(calls) == 2 and sol.stages[0].status == "Infeasible_Problem_Detected" and sol.stages[0].attempts == 1
