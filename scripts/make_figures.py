@@ -1,4 +1,4 @@
-"""Figures of the README: solve T1..T4 with the two-stage strategy and draw them.
+"""Figures for the README and docs/results.md: solve T1..T4 with 2S (A,F+C,2S) and draw them.
 
     python scripts/make_figures.py [--out docs] [--N 100] [--tasks T1 T2 T3 T4] [--gif T1] [--quiet]
 

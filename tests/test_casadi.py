@@ -1,5 +1,5 @@
 """CasADi twin of the NLP (7): values and derivatives agree with ours; CasADi's IPOPT solves a small
-problem to the same point as our cyipopt path."""
+problem to the same point as our IPOPT path."""
 
 import numpy as np
 import pytest

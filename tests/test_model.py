@@ -1,4 +1,4 @@
-"""Physics identities of the humanoid model (issue: physics core)."""
+"""Physics identities of the humanoid model."""
 
 import jax
 import jax.numpy as jnp

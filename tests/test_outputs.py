@@ -1,4 +1,4 @@
-"""Figures, contact timeline and animation of a solved trajectory (issue 6, plotting parts).
+"""Figures, contact timeline and animation of a solved trajectory.
 
 The tests run on a synthetic but physically plausible ``Solution``: joint angles blend
 prone -> crouch -> standing, gaps come from the kinematics, contact forces from the

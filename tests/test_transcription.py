@@ -1,4 +1,4 @@
-"""Transcription, schemes, sparse derivatives and the end-to-end solve (issue: trajectory optimiser)."""
+"""Transcription, schemes, sparse derivatives and the end-to-end solve."""
 
 import jax
 import jax.numpy as jnp

@@ -18,7 +18,7 @@ with margin: foot load f_n0 = 150-180 N and centre of pressure u_1/f_n0 inside [
 >= 4 cm to spare. No lying posture can do so under the nominal and the relaxed contact laws at
 once (the relaxed law changes the load shared between the contacts and the foot by hundreds of
 newtons); the two-stage strategy therefore re-seats the start posture by millimetres for stage 1
-(``ocp.transcription.reseat_for_contact``) so that the relaxed law carries the same contact forces.
+(``strategy.solve.reseat_for_contact``) so that the relaxed law carries the same contact forces.
 """
 
 from __future__ import annotations

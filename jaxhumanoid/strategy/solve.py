@@ -30,15 +30,15 @@ from jaxhumanoid.validation.casadi_backend import solve_casadi
 
 SOLVERS = ("ipopt", "ipm", "casadi")
 STAGE1_N = 30
-# Barrier settings of the two stages, chosen by a measured study (README, "2S warm start"):
+# Barrier settings of the two stages (docs/modelling.md; scripts/study_warm_start.py):
 # stage 1 from the linear guess with IPOPT's mu_init = 0.1 ends "infeasible" on T3; 1e-2 converges
 # on all four tasks. Stage 2 from the primal warm start: a small initial barrier and a small bound
 # push keep the warm start instead of pushing every variable back to the middle of its bounds.
 STAGE1_DEFAULTS = {"mu_init": 1e-2}
 STAGE2_DEFAULTS = {"mu_init": 1e-3, "bound_push": 1e-6, "bound_frac": 1e-6}
-# Stage 1 can still end "infeasible" from the linear guess (T3 with perturbed weights: 2 of 5
-# samples, scripts/study_iterations.py); IPOPT's adaptive barrier update rescued both. Tried in
-# order, by the IPOPT-based solvers only, when stage 1 fails; its iterations and time add up.
+# Stage 1 can still end "infeasible" from the linear guess (e.g. T3 with perturbed weights in
+# scripts/study_iterations.py). Then IPOPT's adaptive barrier update is tried, in order, by the
+# IPOPT-based solvers only; the iterations and times of every run add up.
 STAGE1_FALLBACKS = ({"mu_strategy": "adaptive"},)
 
 

@@ -272,7 +272,7 @@ def solve_casadi(problem, x0=None, options: dict | None = None, verbose: bool = 
     """Solve ``problem`` (a ``strategy.problem.Problem``) with CasADi's IPOPT.
 
     ``options`` are IPOPT options merged over ``solvers.ipopt.DEFAULT_OPTIONS`` (exact Hessian,
-    MUMPS, same tol and mu_strategy as our cyipopt path). ``compile_time_s`` is the time to build
+    MUMPS, same tol and mu_strategy as our IPOPT path). ``compile_time_s`` is the time to build
     the SX graph and the solver (derivative graphs included); ``solve_time_s`` is the wall time of the
     solver call (CasADi's ``t_wall_total`` where its statistics report one).
     """
