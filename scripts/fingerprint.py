@@ -26,6 +26,7 @@ from jaxhumanoid.ocp import transcription as tr
 from jaxhumanoid.solvers.ipm import solve_ipm
 from jaxhumanoid.solvers.ipopt import solve_ipopt
 from jaxhumanoid.strategy import solve as strat
+from jaxhumanoid.validation import testproblems as tp
 
 
 def _digest(x) -> str:
@@ -50,9 +51,7 @@ def task_records(task: str) -> dict:
 
 
 def testproblem_records() -> dict:
-    from jaxhumanoid.validation import testproblems as tp
-
-    cases = {**{k: f for k, f in tp.HS_PROBLEMS.items()}, "wachter_biegler": tp.wachter_biegler,
+    cases = {**tp.HS_PROBLEMS, "wachter_biegler": tp.wachter_biegler,
              "infeasible_disk": tp.infeasible_disk}
     out = {}
     for name, make in cases.items():

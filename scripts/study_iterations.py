@@ -24,7 +24,7 @@ from _bench import write
 
 import jaxhumanoid  # noqa: F401
 from jaxhumanoid.ocp.tasks import get_task
-from jaxhumanoid.outputs.cli import _ipopt_options
+from jaxhumanoid.outputs.cli import parse_solver_options
 from jaxhumanoid.strategy import solve as strat
 
 
@@ -60,7 +60,7 @@ def main():
     args = ap.parse_args()
     if args.samples < 1:
         ap.error("--samples: expected at least 1")
-    options = _ipopt_options(args.ipopt_option)
+    options = parse_solver_options(args.ipopt_option)
     results = {}
     for task in args.tasks:
         runs = []

@@ -48,7 +48,7 @@ def stagewise_nlp(layout: tr.Layout, p_example: tr.OCPParams, name: str = "ocp")
 
     ``p_example`` is used only to detect the local sparsity patterns (at random local points).
     """
-    N, s = layout.N, layout.s
+    N = layout.N
     con_r, cost = _local_functions(layout)
     loc: LocalDerivatives = local_derivatives(con_r, tr.midpoint_map(layout), cost, p_example)
     fidx = _free_index(layout)

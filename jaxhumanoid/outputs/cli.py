@@ -27,7 +27,7 @@ PAPER_TABLE2: dict[str, dict[str, tuple[str, str] | None]] = {
 }
 
 
-def _ipopt_options(pairs) -> dict:
+def parse_solver_options(pairs) -> dict:
     """``--ipopt-option key=value`` pairs, numbers parsed."""
     opts = {}
     for pair in pairs or []:
@@ -62,7 +62,7 @@ def _save(sol, out: pathlib.Path) -> dict:
 def cmd_solve(args) -> int:
     out = pathlib.Path(args.out)
     t0 = time.perf_counter()
-    sol = solve(args.task, args.scheme, solver=args.solver, N=args.N, T=args.T, options=_ipopt_options(args.ipopt_option), verbose=args.verbose)
+    sol = solve(args.task, args.scheme, solver=args.solver, N=args.N, T=args.T, options=parse_solver_options(args.ipopt_option), verbose=args.verbose)
     report = _save(sol, out)
     _write_figures(sol, out, args.animate)
     if not args.quiet:
@@ -101,7 +101,7 @@ def cmd_table2(args) -> int:
     cells = [(t, s) for t in tasks for s in schemes]
     progress = Progress(len(cells), quiet=args.quiet)
     for task, scheme in progress.iter(cells, label=lambda c: f"{c[0]} {c[1]}"):
-        sol = solve(task, scheme, solver=args.solver, N=args.N, options=_ipopt_options(args.ipopt_option))
+        sol = solve(task, scheme, solver=args.solver, N=args.N, options=parse_solver_options(args.ipopt_option))
         cell_dir = out / f"{task}_{scheme.replace(',', '_').replace('+', 'p')}"
         rec = _save(sol, cell_dir)
         records.append(rec)

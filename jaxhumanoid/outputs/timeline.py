@@ -107,7 +107,7 @@ def foot_margins(sol) -> dict[str, np.ndarray]:
 
 def _gantt_panel(ax, sol, mask, criteria):
     t = np.asarray(sol.t, dtype=float)
-    for j, name in enumerate(CONTACT_NAMES):
+    for j in range(len(CONTACT_NAMES)):
         spans = [(a, b - a) for a, b in intervals_from_mask(t, mask[:, j])]
         by_force = criteria[j] == "force"
         ax.broken_barh(spans, (j - 0.35, 0.7), facecolors=JOINT_COLORS[j] if by_force else "none",
