@@ -83,7 +83,7 @@ def test_block_tridiagonal_solve_and_inertia(S, nx, nc, shift):
 
 def test_early_exit_decides_inertia_as_the_full_factorisation():
     # the IPM's inertia-correction trials stop eliminating once the inertia is known not to be
-    # (n, m, 0) (kkt._negative_caps); over Hessian shifts across the change of inertia, the
+    # (n, m, 0) (kkt.negative_caps); over Hessian shifts across the change of inertia, the
     # decision must equal the full factorisation's, and a matrix with the right inertia must be
     # factored exactly as without the exit
     rng = np.random.default_rng(11)
