@@ -27,8 +27,8 @@ singular and the smallest delta_w in {0, 1e-4 * 8^j} giving inertia (n, m, 0); t
   - inertia from ``factor`` against dense ``numpy.linalg.eigvalsh`` of the equilibrated K (a
     congruence): "OK" when equal, eigenvalues with |eig| <= n eps max|eig| (third number) counted
     as either sign or zero.
-``--baseline-kkt FILE`` runs the same for another, single-file version of the module (a
-``kkt.py`` of a revision before the package split) and then times both in alternation (one call
+``--baseline-kkt FILE`` runs the same for another version of the module given as one file (the
+``kkt.py`` of a revision where it is a single module) and then times both in alternation (one call
 of each per round), so that a varying load on the machine affects both alike.
 Set OMP_NUM_THREADS=1 when comparing with other runs; report ``uptime`` next to the numbers.
 """
@@ -86,7 +86,8 @@ def make_data(path: str) -> dict:
                 + np.where(np.isfinite(b.xu), r.z_u / np.maximum(b.xu - x, 1e-20), 0.0)
             ineq = b.gl < b.gu
             s = np.clip(g, b.gl, b.gu)
-            slack = np.minimum(np.where(np.isfinite(b.gl), s - b.gl, np.inf), np.where(np.isfinite(b.gu), b.gu - s, np.inf))
+            slack = np.minimum(np.where(np.isfinite(b.gl), s - b.gl, np.inf),
+                               np.where(np.isfinite(b.gu), b.gu - s, np.inf))
             sig_s = np.abs(lam) / np.maximum(slack, 1e-20)
             dc = np.where(ineq, -1.0 / np.maximum(sig_s, 1e-20), 0.0)
         out[f"{label}_hess"], out[f"{label}_jac"] = hv, jv
@@ -163,7 +164,7 @@ def backward_error(Ks, s, u, r):
 
 
 def baseline_slow_blocks(K, st, A, B):
-    """Pivot blocks that fail the original quasi-definite test (Cholesky of P and of minus the
+    """Pivot blocks that fail the plain quasi-definite test (Cholesky of P and of minus the
     Schur complement), simulated in numpy on the exact D_k sequence: for versions of the module
     without ``pivot_paths``."""
     d = K.equilibrate(A, B)
@@ -326,7 +327,8 @@ def compare(D, K_old, repeats, labels):
         t = interleaved(cases, repeats)
         row = {"label": label, "delta_w": dw, "delta_c": dc, "times": t}
         rows.append(row)
-        print(f"{label:6s} dw={dw:7.1e} dc={dc:5.0e}  factor {t['old_factor']['median_ms']:6.2f} -> {t['new_factor']['median_ms']:6.2f} ms"
+        print(f"{label:6s} dw={dw:7.1e} dc={dc:5.0e}"
+              f"  factor {t['old_factor']['median_ms']:6.2f} -> {t['new_factor']['median_ms']:6.2f} ms"
               f" (cpu {t['old_factor']['cpu_median_ms']:6.2f} -> {t['new_factor']['cpu_median_ms']:6.2f})"
               f"  plain {t['old_plain']['median_ms']:5.2f} -> {t['new_plain']['median_ms']:5.2f}"
               f"  refined {t['old_refined']['median_ms']:5.2f} -> {t['new_refined']['median_ms']:5.2f} ms", flush=True)
@@ -341,11 +343,13 @@ def uptime() -> str:
 
 
 def _print_case(r, S):
-    print(f"  {r['module']:3s} {r['label']:6s} dw={r['delta_w']:7.1e} dc={r['delta_c']:5.0e} factor {r['factor']['median_ms']:6.2f} ms"
+    print(f"  {r['module']:3s} {r['label']:6s} dw={r['delta_w']:7.1e} dc={r['delta_c']:5.0e}"
+          f" factor {r['factor']['median_ms']:6.2f} ms"
           f" (cpu {r['factor']['cpu_median_ms']:6.2f})  plain {r['plain_solve']['median_ms']:5.2f}  refined"
           f" {r['solve_refined']['median_ms']:5.2f} ms ({r['refinement_steps']:2d} st)  slow {r['slow_blocks']:3d}/{S}"
           f"  berr {r['backward_error']:.0e}"
-          + (f" (spsolve {r['spsolve_backward_error']:.0e}, diff {r['rel_diff_spsolve']:.0e})  inertia {tuple(r['inertia'])}"
+          + (f" (spsolve {r['spsolve_backward_error']:.0e}, diff {r['rel_diff_spsolve']:.0e})"
+             f"  inertia {tuple(r['inertia'])}"
              f" eig {tuple(r['inertia_eigvalsh'])} {'OK' if r['inertia_match'] else 'MISMATCH'}"
              if 'inertia_eigvalsh' in r else f"  inertia {tuple(r['inertia'])}"), flush=True)
 
