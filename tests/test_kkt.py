@@ -1,14 +1,13 @@
 """Block-tridiagonal KKT solve and inertia vs scipy.sparse direct solve and dense eigvalsh."""
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 import jaxhumanoid  # noqa: F401  (float64)
-import jax
-import jax.numpy as jnp
-
 from jaxhumanoid.ocp.nlp import NLP
 from jaxhumanoid.solvers.ipm import kkt
 from jaxhumanoid.solvers.ipm.kkt import assembly, pivot, substitution
@@ -119,7 +118,7 @@ def test_early_exit_decides_inertia_as_the_full_factorisation():
         pb = np.asarray(jax.vmap(lambda A_, B_: kkt.pivot_paths(st, A_, B_, early_exit=True))(A[sel], B[sel]))
         assert np.any(pb == 3) == skipped
         for j, i in enumerate(sel):
-            assert bool(kkt.inertia_ok(st, jax.tree.map(lambda a: a[j], fb))) == (i == 2)
+            assert bool(kkt.inertia_ok(st, jax.tree.map(lambda a, j=j: a[j], fb))) == (i == 2)
         if not skipped:
             np.testing.assert_allclose(np.asarray(fb.N[1]), np.asarray(kkt.factor(st, A[2], B[2]).N),
                                        rtol=1e-12, atol=1e-14)
@@ -330,7 +329,7 @@ def test_structure_of_a_tiny_staged_nlp():
     # primal rows 0, 1 and the dual columns 2, 3
     np.testing.assert_array_equal(st.b_rows, [0, 1])
     np.testing.assert_array_equal(st.b_cols, [2, 3])
-    A, B = kkt.assemble(st, jnp.arange(1.0, 6.0), jnp.arange(10.0, 17.0), jnp.zeros(5), -jnp.ones(4))
+    _, B = kkt.assemble(st, jnp.arange(1.0, 6.0), jnp.arange(10.0, 17.0), jnp.zeros(5), -jnp.ones(4))
     B = np.asarray(B)
     assert B[0, 0, 2] == 11.0 and B[0, 1, 3] == 12.0 and B[1, 0, 2] == 14.0 and B[1, 1, 3] == 16.0
     assert np.count_nonzero(B) == 4
@@ -346,7 +345,7 @@ def test_structure_of_a_tiny_staged_nlp():
 
 def test_structure_is_cached_in_the_nlp():
     n, m, vs, cs, hr, hc, jr, jc = tiny_staged_nlp_pattern()
-    fn = lambda *a: None                                       # noqa: E731  (never evaluated)
+    fn = lambda *a: None                                       # never evaluated
     nlp = NLP(n=n, m=m, f=fn, g=fn, grad=fn, jac_values=fn, hess_values=fn, jac_rows=jr, jac_cols=jc,
               hess_rows=hr, hess_cols=hc, var_stage=vs, con_stage=cs)
     st = kkt.structure_of(nlp)

@@ -152,7 +152,7 @@ def qd_diag_core(Pt, Qt, Rd, gamma=QD_GAMMA):
     itself is not formed (an nb^3 product). Returns (N = M^T (nb, nb), ok): ok iff both Cholesky
     factorisations succeeded (inertia (nbx, nc, 0)); a failed one is NaN throughout, and so is
     then N."""
-    nbx, nc = Pt.shape[0], Qt.shape[0]
+    nbx = Pt.shape[0]
     Lpi = _tri_inv(_chol(Pt))
     W = jnp.einsum("ij,kj->ik", Qt, Lpi)                      # Q~ Lp^{-T}
     Lsi = _tri_inv(_chol(jnp.einsum("ij,kj->ik", W, W) - Rd))
