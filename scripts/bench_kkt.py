@@ -1,4 +1,4 @@
-"""Benchmark: the IPM's block-tridiagonal KKT factorisation (``solvers/ipm/kkt.py``) on real
+"""Benchmark: the IPM's block-tridiagonal KKT factorisation (the ``solvers/ipm/kkt`` package) on real
 humanoid KKT matrices.
 
     OMP_NUM_THREADS=1 python scripts/bench_kkt.py [--repeats 20] [--out results/bench_kkt.json]
@@ -18,7 +18,7 @@ For each matrix: IPOPT's inertia correction on ``factor``'s inertia picks delta_
 singular and the smallest delta_w in {0, 1e-4 * 8^j} giving inertia (n, m, 0); the cases are
 (0, 0), (0, delta_c) and (delta_w, delta_c). For each case:
   - time (median of ``--repeats``, jitted, wall and CPU) of ``factor``, one plain block solve
-    (``_solve_vec``) and ``solve`` with the IPM's refinement settings (min 1, max 10 steps,
+    (``solve_vec``) and ``solve`` with the IPM's refinement settings (min 1, max 10 steps,
     ratio 1e-10), and the refinement steps taken,
   - the number of pivot blocks off the quasi-definite fast path (eigendecomposed),
   - accuracy: normwise backward error of the refined solve in the Ruiz-equilibrated system (an
@@ -27,8 +27,9 @@ singular and the smallest delta_w in {0, 1e-4 * 8^j} giving inertia (n, m, 0); t
   - inertia from ``factor`` against dense ``numpy.linalg.eigvalsh`` of the equilibrated K (a
     congruence): "OK" when equal, eigenvalues with |eig| <= n eps max|eig| (third number) counted
     as either sign or zero.
-``--baseline-kkt FILE`` runs the same for another kkt.py and then times both in alternation
-(one call of each per round), so that a varying load on the shared machine affects both alike.
+``--baseline-kkt FILE`` runs the same for another version of the module given as one file (the
+``kkt.py`` of a revision where it is a single module) and then times both in alternation (one call
+of each per round), so that a varying load on the machine affects both alike.
 Set OMP_NUM_THREADS=1 when comparing with other runs; report ``uptime`` next to the numbers.
 """
 
@@ -36,9 +37,12 @@ from __future__ import annotations
 
 import argparse
 import hashlib
+import importlib.util
 import os
 import pathlib
 import subprocess
+import sys
+import time
 
 import jax
 import jax.numpy as jnp
@@ -59,6 +63,7 @@ def make_data(path: str) -> dict:
     if p.exists():
         z = np.load(p, allow_pickle=False)
         return {k: z[k] for k in z.files}
+    # the OCP and IPOPT stack is needed only to build the data once
     from bench_ipm import stage1_problem
     from jaxhumanoid.ocp import transcription as tr
     from jaxhumanoid.solvers.ipopt import solve_ipopt
@@ -81,7 +86,8 @@ def make_data(path: str) -> dict:
                 + np.where(np.isfinite(b.xu), r.z_u / np.maximum(b.xu - x, 1e-20), 0.0)
             ineq = b.gl < b.gu
             s = np.clip(g, b.gl, b.gu)
-            slack = np.minimum(np.where(np.isfinite(b.gl), s - b.gl, np.inf), np.where(np.isfinite(b.gu), b.gu - s, np.inf))
+            slack = np.minimum(np.where(np.isfinite(b.gl), s - b.gl, np.inf),
+                               np.where(np.isfinite(b.gu), b.gu - s, np.inf))
             sig_s = np.abs(lam) / np.maximum(slack, 1e-20)
             dc = np.where(ineq, -1.0 / np.maximum(sig_s, 1e-20), 0.0)
         out[f"{label}_hess"], out[f"{label}_jac"] = hv, jv
@@ -158,8 +164,8 @@ def backward_error(Ks, s, u, r):
 
 
 def baseline_slow_blocks(K, st, A, B):
-    """Pivot blocks that fail the original quasi-definite test (Cholesky of P and of minus the
-    Schur complement), simulated in numpy on the exact D_k sequence: for versions of kkt.py
+    """Pivot blocks that fail the plain quasi-definite test (Cholesky of P and of minus the
+    Schur complement), simulated in numpy on the exact D_k sequence: for versions of the module
     without ``pivot_paths``."""
     d = K.equilibrate(A, B)
     As, Bs = (np.asarray(v) for v in K.scale_blocks(A, B, d))
@@ -243,7 +249,10 @@ def run_case(K, st, D, label, dw, dcr, repeats, check, cache_dir):
 
 
 def _plain_solve(K, st, fac, B, r):
-    """One pass of the block solve (no refinement), for both versions of ``kkt._solve_vec``."""
+    """One pass of the block solve (no refinement): the package's ``solve_vec``, or the private
+    ``_solve_vec`` of a single-file baseline (with or without the border coupling argument)."""
+    if hasattr(K, "solve_vec"):
+        return K.solve_vec(st, fac, K.border_coupling(st, fac, B), r)
     if hasattr(K, "_border_coupling"):
         return K._solve_vec(st, fac, K._border_coupling(st, fac, B), r)
     return K._solve_vec(st, fac, r)
@@ -271,7 +280,6 @@ def _refinement_steps(K, st, fac, A, B, rx, rc, min_steps=1, max_steps=10, ratio
 def interleaved(cases, repeats):
     """Median wall/CPU ms of several jitted calls timed in alternation (one call of each per
     round), so that a varying load on a shared machine affects all alike."""
-    import time
     for fn, args in cases.values():
         jax.block_until_ready(fn(*args))
     wall = {k: [] for k in cases}
@@ -287,17 +295,16 @@ def interleaved(cases, repeats):
 
 
 def load_module(path: str):
-    import importlib.util
+    """A single-file kkt module from ``path``, importable as ``kkt_baseline``."""
     spec = importlib.util.spec_from_file_location("kkt_baseline", path)
     mod = importlib.util.module_from_spec(spec)
-    import sys
     sys.modules[spec.name] = mod          # dataclasses look the module up
     spec.loader.exec_module(mod)
     return mod
 
 
 def compare(D, K_old, repeats, labels):
-    """Interleaved timing of the baseline module against this kkt.py on the same matrices."""
+    """Interleaved timing of the baseline module against this kkt package on the same matrices."""
     sts = {name: K.build_structure(int(D["n"]), int(D["m"]), D["var_stage"], D["con_stage"], D["hess_rows"],
                                    D["hess_cols"], D["jac_rows"], D["jac_cols"])
            for name, K in (("old", K_old), ("new", kkt))}
@@ -320,7 +327,8 @@ def compare(D, K_old, repeats, labels):
         t = interleaved(cases, repeats)
         row = {"label": label, "delta_w": dw, "delta_c": dc, "times": t}
         rows.append(row)
-        print(f"{label:6s} dw={dw:7.1e} dc={dc:5.0e}  factor {t['old_factor']['median_ms']:6.2f} -> {t['new_factor']['median_ms']:6.2f} ms"
+        print(f"{label:6s} dw={dw:7.1e} dc={dc:5.0e}"
+              f"  factor {t['old_factor']['median_ms']:6.2f} -> {t['new_factor']['median_ms']:6.2f} ms"
               f" (cpu {t['old_factor']['cpu_median_ms']:6.2f} -> {t['new_factor']['cpu_median_ms']:6.2f})"
               f"  plain {t['old_plain']['median_ms']:5.2f} -> {t['new_plain']['median_ms']:5.2f}"
               f"  refined {t['old_refined']['median_ms']:5.2f} -> {t['new_refined']['median_ms']:5.2f} ms", flush=True)
@@ -335,11 +343,13 @@ def uptime() -> str:
 
 
 def _print_case(r, S):
-    print(f"  {r['module']:3s} {r['label']:6s} dw={r['delta_w']:7.1e} dc={r['delta_c']:5.0e} factor {r['factor']['median_ms']:6.2f} ms"
+    print(f"  {r['module']:3s} {r['label']:6s} dw={r['delta_w']:7.1e} dc={r['delta_c']:5.0e}"
+          f" factor {r['factor']['median_ms']:6.2f} ms"
           f" (cpu {r['factor']['cpu_median_ms']:6.2f})  plain {r['plain_solve']['median_ms']:5.2f}  refined"
           f" {r['solve_refined']['median_ms']:5.2f} ms ({r['refinement_steps']:2d} st)  slow {r['slow_blocks']:3d}/{S}"
           f"  berr {r['backward_error']:.0e}"
-          + (f" (spsolve {r['spsolve_backward_error']:.0e}, diff {r['rel_diff_spsolve']:.0e})  inertia {tuple(r['inertia'])}"
+          + (f" (spsolve {r['spsolve_backward_error']:.0e}, diff {r['rel_diff_spsolve']:.0e})"
+             f"  inertia {tuple(r['inertia'])}"
              f" eig {tuple(r['inertia_eigvalsh'])} {'OK' if r['inertia_match'] else 'MISMATCH'}"
              if 'inertia_eigvalsh' in r else f"  inertia {tuple(r['inertia'])}"), flush=True)
 
@@ -352,7 +362,7 @@ def main():
     ap.add_argument("--labels", nargs="*", default=["it3", "it30", "final", "synth"])
     ap.add_argument("--no-check", action="store_true", help="skip the spsolve and eigvalsh references")
     ap.add_argument("--baseline-kkt", default=None,
-                    help="another kkt.py (e.g. `git show REV:jaxhumanoid/solvers/ipm/kkt.py > old.py`): "
+                    help="a single-file kkt.py (`git show REV:jaxhumanoid/solvers/ipm/kkt.py > old.py`): "
                          "the same checks for it, and timings interleaved with this one's")
     args = ap.parse_args()
     D = make_data(args.data)
@@ -380,7 +390,7 @@ def main():
     results = {"n": st.n, "m": st.m, "S": st.S, "nb": st.nb, "nbx": st.nbx,
                "omp_num_threads": os.environ.get("OMP_NUM_THREADS"), "uptime_before": load_before, "cases": rows}
     if args.baseline_kkt:
-        print(f"interleaved timings, baseline -> this kkt.py (medians of {args.repeats}); {uptime()}")
+        print(f"interleaved timings, baseline -> this kkt package (medians of {args.repeats}); {uptime()}")
         results["interleaved"] = compare(D, modules[1][1], args.repeats, shifts)
     results["uptime_after"] = load_after = uptime()
     print(load_after)

@@ -1,15 +1,16 @@
 """Block-tridiagonal KKT solve and inertia vs scipy.sparse direct solve and dense eigvalsh."""
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 import jaxhumanoid  # noqa: F401  (float64)
-import jax
-import jax.numpy as jnp
-
+from jaxhumanoid.ocp.nlp import NLP
 from jaxhumanoid.solvers.ipm import kkt
+from jaxhumanoid.solvers.ipm.kkt import assembly, pivot, substitution
 
 
 def random_staged_pattern(rng, S, nx, nc):
@@ -83,7 +84,7 @@ def test_block_tridiagonal_solve_and_inertia(S, nx, nc, shift):
 
 def test_early_exit_decides_inertia_as_the_full_factorisation():
     # the IPM's inertia-correction trials stop eliminating once the inertia is known not to be
-    # (n, m, 0) (kkt._negative_caps); over Hessian shifts across the change of inertia, the
+    # (n, m, 0) (kkt.negative_caps); over Hessian shifts across the change of inertia, the
     # decision must equal the full factorisation's, and a matrix with the right inertia must be
     # factored exactly as without the exit
     rng = np.random.default_rng(11)
@@ -117,9 +118,10 @@ def test_early_exit_decides_inertia_as_the_full_factorisation():
         pb = np.asarray(jax.vmap(lambda A_, B_: kkt.pivot_paths(st, A_, B_, early_exit=True))(A[sel], B[sel]))
         assert np.any(pb == 3) == skipped
         for j, i in enumerate(sel):
-            assert bool(kkt.inertia_ok(st, jax.tree.map(lambda a: a[j], fb))) == (i == 2)
+            assert bool(kkt.inertia_ok(st, jax.tree.map(lambda a, j=j: a[j], fb))) == (i == 2)
         if not skipped:
-            np.testing.assert_allclose(np.asarray(fb.N[1]), np.asarray(kkt.factor(st, A[2], B[2]).N), rtol=1e-12, atol=1e-14)
+            np.testing.assert_allclose(np.asarray(fb.N[1]), np.asarray(kkt.factor(st, A[2], B[2]).N),
+                                       rtol=1e-12, atol=1e-14)
 
 
 def test_singular_kkt_reports_zero_eigenvalue():
@@ -191,7 +193,8 @@ def double_integrator_pattern(S, nq, nu, h=0.1):
     stage 0's variables, so stage 0 must be the border block."""
     idx, var_stage = [], []
     for k in range(S):
-        names = ([] if k == 0 else [("q", i) for i in range(nq)] + [("v", i) for i in range(nq)]) + [("u", i) for i in range(nu)]
+        states = [] if k == 0 else [("q", i) for i in range(nq)] + [("v", i) for i in range(nq)]
+        names = states + [("u", i) for i in range(nu)]
         idx.append({nm: len(var_stage) + j for j, nm in enumerate(names)})
         var_stage += [k] * len(names)
     jr, jc, jv, con_stage = [], [], [], []
@@ -203,7 +206,8 @@ def double_integrator_pattern(S, nq, nu, h=0.1):
                 jr.append(j), jc.append(c), jv.append(v)
             con_stage.append(k)
             j = len(con_stage)
-            ent = [(idx[k + 1][("v", i)], 1.0), (idx[k + 1][("q", (i + 1) % nq)], 0.3 * h), (idx[k][("u", i % nu)], -h)] \
+            ent = [(idx[k + 1][("v", i)], 1.0), (idx[k + 1][("q", (i + 1) % nq)], 0.3 * h),
+                   (idx[k][("u", i % nu)], -h)] \
                 + ([(idx[k][("v", i)], -1.0)] if k else [])
             for c, v in ent:
                 jr.append(j), jc.append(c), jv.append(v)
@@ -298,3 +302,183 @@ def test_vmapped_factor_matches_members_with_mixed_pivot_paths():
             np.testing.assert_allclose(np.concatenate([ub[0][j], ub[1][j]]), np.concatenate(u1), rtol=1e-10, atol=1e-12)
         if sel[1] == 1:                                   # the fallback member: more blocks on eigh
             assert np.sum(pb[1] == 2) > np.sum(pb[0] == 2)
+
+
+# ------------------------------------------------------------------ the package's parts on their own
+def tiny_staged_nlp_pattern(reverse=False):
+    """Three stages: stage 0 holds x0, stage 1 (x1, x2), stage 2 (x3, x4); interval 0's rows
+    c0 = (x0, x1), c1 = (x2); interval 1's rows c2 = (x1, x3), c3 = (x2, x4); diagonal Hessian.
+    ``reverse``: the same with the stage ids mirrored (2 - k)."""
+    vs, cs = np.array([0, 1, 1, 2, 2]), np.array([0, 0, 1, 1])
+    if reverse:
+        vs, cs = 2 - vs, 2 - cs
+    jr, jc = np.array([0, 0, 1, 2, 2, 3, 3]), np.array([0, 1, 2, 1, 3, 2, 4])
+    return 5, 4, vs, cs, np.arange(5), np.arange(5), jr, jc
+
+
+def test_structure_of_a_tiny_staged_nlp():
+    st = kkt.build_structure(*tiny_staged_nlp_pattern())
+    assert (st.S, st.nb, st.nbx) == (3, 4, 2)
+    # block k: [x.., primal padding | c.., dual padding], positions k * nb + local
+    np.testing.assert_array_equal(st.var_pos, [0, 4, 5, 8, 9])
+    np.testing.assert_array_equal(st.con_pos, [2, 3, 6, 7])
+    np.testing.assert_array_equal(st.pad_pos, [1, 10, 11])
+    np.testing.assert_array_equal(st.pad_sign, [1.0, -1.0, -1.0])
+    assert (st.n_pad_pos, st.n_pad_neg) == (1, 2)
+    # the couplings: K[x1, c0], K[x2, c1] in B_0 and K[x3, c2], K[x4, c3] in B_1, all on the
+    # primal rows 0, 1 and the dual columns 2, 3
+    np.testing.assert_array_equal(st.b_rows, [0, 1])
+    np.testing.assert_array_equal(st.b_cols, [2, 3])
+    _, B = kkt.assemble(st, jnp.arange(1.0, 6.0), jnp.arange(10.0, 17.0), jnp.zeros(5), -jnp.ones(4))
+    B = np.asarray(B)
+    assert B[0, 0, 2] == 11.0 and B[0, 1, 3] == 12.0 and B[1, 0, 2] == 14.0 and B[1, 1, 3] == 16.0
+    assert np.count_nonzero(B) == 4
+    # the Haynsworth caps: k (nb - nbx) + m_0 negative eigenvalues for blocks 1..k, at most m + 2
+    np.testing.assert_array_equal(kkt.negative_caps(st), [2, 4, 6])
+    # mirrored stage ids: "auto" puts stage 2 (now the one with one variable and two rows) first
+    stm = kkt.build_structure(*tiny_staged_nlp_pattern(reverse=True))
+    np.testing.assert_array_equal(stm.var_pos, st.var_pos)
+    np.testing.assert_array_equal(stm.con_pos, st.con_pos)
+    stf = kkt.build_structure(*tiny_staged_nlp_pattern(reverse=True), order="forward")
+    assert stf.var_pos[0] // stf.nb == 2
+
+
+def test_structure_is_cached_in_the_nlp():
+    n, m, vs, cs, hr, hc, jr, jc = tiny_staged_nlp_pattern()
+    fn = lambda *a: None                                       # never evaluated
+    nlp = NLP(n=n, m=m, f=fn, g=fn, grad=fn, jac_values=fn, hess_values=fn, jac_rows=jr, jac_cols=jc,
+              hess_rows=hr, hess_cols=hc, var_stage=vs, con_stage=cs)
+    st = kkt.structure_of(nlp)
+    assert kkt.structure_of(nlp) is st and st in nlp.cache.values()
+    assert not hasattr(nlp, "_kkt_structure_cache")
+    np.testing.assert_array_equal(st.var_pos, kkt.build_structure(n, m, vs, cs, hr, hc, jr, jc).var_pos)
+
+
+def saddle_block(rng, nbx, R):
+    """[[P, Q^T], [Q, R]] with P indefinite (eigenvalues of both signs) and Q of full row rank."""
+    nc = R.shape[0]
+    U = np.linalg.qr(rng.standard_normal((nbx, nbx)))[0]
+    P = U @ np.diag(np.linspace(-0.5, 1.0, nbx)) @ U.T
+    Q = rng.standard_normal((nc, nbx))
+    return np.block([[P, Q.T], [Q, R]])
+
+
+def inverse_of(N, sgn):
+    return np.asarray(N) @ np.diag(np.asarray(sgn)) @ np.asarray(N).T
+
+
+def test_quasidefinite_pivot_certifies_an_indefinite_primal_block():
+    rng = np.random.default_rng(2)
+    nbx, nc = 3, 2
+    D = saddle_block(rng, nbx, np.zeros((nc, nc)))
+    # P indefinite with nc < nbx: inertia (nbx, nc, 0) iff P is definite on null(Q); make it so
+    Z = np.linalg.svd(D[nbx:, :nbx])[2][nc:].T
+    D[:nbx, :nbx] += Z @ Z.T
+    ev = np.linalg.eigvalsh(D)
+    assert (np.sum(ev > 0), np.sum(ev < 0)) == (nbx, nc)
+    N, ok = pivot.quasidefinite_block(jnp.asarray(D), nbx)
+    assert bool(ok)
+    np.testing.assert_allclose(inverse_of(N, np.r_[np.ones(nbx), -np.ones(nc)]), np.linalg.inv(D),
+                               rtol=1e-9, atol=1e-9)
+    _, ok0 = pivot.quasidefinite_block(jnp.asarray(D), nbx, gamma=0.0)    # plain test: P indefinite
+    assert not bool(ok0)
+    Nk, sgn, info = pivot.pivot(jnp.asarray(D), nbx, True, 1e-12)
+    np.testing.assert_array_equal(np.asarray(info), [nc, 0, 0])
+    np.testing.assert_allclose(inverse_of(Nk, sgn), np.linalg.inv(D), rtol=1e-9, atol=1e-9)
+
+
+def test_diagonal_dual_fast_path_matches_the_general_one():
+    rng = np.random.default_rng(4)
+    nbx, nc = 3, 2
+    A = jnp.asarray(saddle_block(rng, nbx, np.diag([-1e-3, -1e-2]))[None])
+    Z = np.linalg.svd(np.asarray(A[0, nbx:, :nbx]))[2][nc:].T
+    A = A.at[0, :nbx, :nbx].add(Z @ Z.T)
+    Pt, Qt, Rd = pivot.qd_diag_pre(A, nbx)
+    Nd, okd = pivot.qd_diag_core(Pt[0], Qt[0], Rd[0])
+    Ng, okg = pivot.quasidefinite_block(A[0], nbx)
+    assert bool(okd) and bool(okg)
+    sgn = np.r_[np.ones(nbx), -np.ones(nc)]
+    np.testing.assert_allclose(inverse_of(Nd, sgn), np.linalg.inv(np.asarray(A[0])), rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(inverse_of(Nd, sgn), inverse_of(Ng, sgn), rtol=1e-9, atol=1e-9)
+    # R with a positive entry: M = I - gamma R is not positive definite, the path reports failure
+    Ab = A.at[0, nbx, nbx].set(1.0)
+    Pt, Qt, Rd = pivot.qd_diag_pre(Ab, nbx)
+    assert not bool(pivot.qd_diag_core(Pt[0], Qt[0], Rd[0])[1])
+
+
+def test_eigen_pivot_counts_signs_and_zeros():
+    rng = np.random.default_rng(6)
+    U = np.linalg.qr(rng.standard_normal((4, 4)))[0]
+    D = U @ np.diag([3.0, -2.0, 0.0, 1e-3]) @ U.T
+    _, _, info = pivot.eigen_pivot(jnp.asarray(D), 1e-10)
+    np.testing.assert_array_equal(np.asarray(info), [1, 1, 2])
+    D[2, 2] += 0.5                                              # nonsingular: an exact inverse
+    ev = np.linalg.eigvalsh(D)
+    N, sgn, info = pivot.eigen_pivot(jnp.asarray(D), 1e-10)
+    np.testing.assert_array_equal(np.asarray(info), [np.sum(ev < 0), 0, 2])
+    np.testing.assert_allclose(inverse_of(N, sgn), np.linalg.inv(D), rtol=1e-10, atol=1e-10)
+    _, _, info = pivot.eigen_pivot(jnp.asarray(np.where(np.eye(4) > 0, np.nan, D)), 1e-10)
+    np.testing.assert_array_equal(np.asarray(info), [0, 4, 2])   # non-finite: all zero
+    # a block without inertia (nbx, nc, 0) leaves the fast path for the eigendecomposition
+    Dw = np.diag([1.0, 1.0, 1.0, -1.0])
+    _, sgn, info = pivot.pivot(jnp.asarray(Dw), 2, True, 1e-10)
+    np.testing.assert_array_equal(np.asarray(info), [1, 0, 2])
+    assert sorted(np.asarray(sgn)) == [-1.0, 1.0, 1.0, 1.0]
+
+
+def test_refinement_meets_the_residual_ratio_and_reports_the_residual():
+    rng = np.random.default_rng(8)
+    n, m, vs, cs, hr, hc, jr, jc = random_staged_pattern(rng, 6, 4, 3)
+    st = kkt.build_structure(n, m, vs, cs, hr, hc, jr, jc)
+    hv, jv = rng.standard_normal(hr.size), rng.standard_normal(jr.size)
+    dx = 10.0 ** rng.uniform(-6, 6, n)                         # graded barrier terms
+    dc = -(10.0 ** rng.uniform(-8, -2, m))
+    A, B = kkt.assemble(st, jnp.asarray(hv), jnp.asarray(jv), jnp.asarray(dx), jnp.asarray(dc))
+    fac = kkt.factor(st, A, B)
+    assert int(fac.nzero) == 0
+    rx, rc = jnp.asarray(rng.standard_normal(n)), jnp.asarray(rng.standard_normal(m))
+    ux, uc, res = kkt.solve(st, fac, A, B, rx, rc, with_residual=True)
+    K = sparse_kkt(n, m, hr, hc, hv, jr, jc, jv, dx, dc)
+    r, u = np.concatenate([rx, rc]), np.concatenate([ux, uc])
+    res_np = np.max(np.abs(r - K @ u))
+    knorm = abs(K).sum(axis=1).max()
+    eps = np.finfo(float).eps
+    assert abs(float(res) - res_np) <= 100 * eps * (knorm * np.max(np.abs(u)) + np.max(np.abs(r)))
+    u_blk, r_blk = kkt.to_blocks(st, ux, uc), kkt.to_blocks(st, rx, rc)
+    res_blk = r_blk - kkt.matvec(A, B, u_blk)
+    ratio = substitution.refinement_ratio(fac, u_blk, res_blk, jnp.max(jnp.abs(fac.d * r_blk)))
+    assert float(ratio) <= 1e-10
+    # no refinement: one plain block solve
+    px, pc = kkt.solve(st, fac, A, B, rx, rc, min_steps=0, max_steps=0)
+    plain = kkt.solve_vec(st, fac, kkt.border_coupling(st, fac, B), r_blk)
+    np.testing.assert_allclose(np.concatenate([px, pc]), np.concatenate(kkt.from_blocks(st, plain)),
+                               rtol=1e-12, atol=1e-14 * np.max(np.abs(u)))
+
+
+def test_block_products_and_compact_equilibration():
+    rng = np.random.default_rng(9)
+    n, m, vs, cs, hr, hc, jr, jc = random_staged_pattern(rng, 5, 4, 3)
+    st = kkt.build_structure(n, m, vs, cs, hr, hc, jr, jc)
+    hv, jv = rng.standard_normal(hr.size), rng.standard_normal(jr.size)
+    dx, dc = 10.0 ** rng.uniform(-4, 4, n), -(10.0 ** rng.uniform(-6, 0, m))
+    A, B = kkt.assemble(st, jnp.asarray(hv), jnp.asarray(jv), jnp.asarray(dx), jnp.asarray(dc))
+    rx, rc = jnp.asarray(rng.standard_normal(n)), jnp.asarray(rng.standard_normal(m))
+    u = kkt.to_blocks(st, rx, rc)
+    back = kkt.from_blocks(st, u)
+    np.testing.assert_array_equal(back[0], rx)
+    np.testing.assert_array_equal(back[1], rc)
+    assert np.all(np.asarray(u).reshape(-1)[st.pad_pos] == 0.0)
+    K = sparse_kkt(n, m, hr, hc, hv, jr, jc, jv, dx, dc)
+    y = kkt.from_blocks(st, kkt.matvec(A, B, u))
+    np.testing.assert_allclose(np.concatenate(y), K @ np.concatenate([rx, rc]), rtol=1e-12, atol=1e-12)
+    yc = assembly.matvec_compact(st, A, B, u)
+    np.testing.assert_allclose(yc, kkt.matvec(A, B, u), rtol=1e-13, atol=1e-13)
+    d, As, Bc = assembly.equilibrate_compact(st, A, B)
+    d_ref = kkt.equilibrate(A, B)
+    As_ref, Bs_ref = kkt.scale_blocks(A, B, d_ref)
+    np.testing.assert_allclose(d, d_ref, rtol=1e-14)
+    np.testing.assert_allclose(As, As_ref, rtol=1e-14, atol=1e-300)
+    np.testing.assert_allclose(Bc, np.asarray(Bs_ref)[:, st.b_rows][:, :, st.b_cols], rtol=1e-14, atol=1e-300)
+    # after equilibration every row of K has largest entry close to 1
+    Ks = kkt.dense_matrix(st, *kkt.scale_blocks(A, B, d))
+    assert np.all(np.abs(np.max(np.abs(Ks), axis=1) - 1.0) < 0.5)
