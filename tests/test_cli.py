@@ -31,3 +31,20 @@ def test_cli_solve_two_stage_t1(tmp_path):
 def test_cli_reports_bad_input_clearly(capsys):
     assert main(["--no-cache", "solve", "--task", "T7", "--out", "/tmp/never"]) == 2
     assert "task" in capsys.readouterr().err
+
+
+def test_bad_input_is_reported_before_any_work(capsys, tmp_path):
+    """Each bad input ends with a one-line error naming the field and exit status 2, at once."""
+    cases = [
+        (["solve", "--out", "/proc/jaxhumanoid-test"], "--out"),
+        (["solve", "--ipopt-option", "tol", "--out", str(tmp_path)], "--ipopt-option"),
+        (["solve", "--ipopt-option", "tol_x=1", "--out", str(tmp_path)], "tol_x"),
+        (["solve", "--solver", "casadi", "--ipopt-option", "mu_strategy=fast", "--out", str(tmp_path)], "mu_strategy"),
+        (["animate", str(tmp_path / "missing")], "dir"),
+        (["animate", str(tmp_path)], "solution.npz"),
+    ]
+    for argv, field in cases:
+        assert main(["--no-cache", *argv]) == 2, argv
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("jaxhumanoid: error:") and field in err[0], (argv, err)
+    assert not list(tmp_path.iterdir()), "nothing may be written before the inputs are checked"

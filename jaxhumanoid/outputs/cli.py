@@ -6,6 +6,7 @@ import argparse
 import json
 import pathlib
 import sys
+import tempfile
 import time
 
 from jaxhumanoid.ocp.scheme import TABLE2_SCHEMES
@@ -13,6 +14,7 @@ from jaxhumanoid.outputs import plots, timeline
 from jaxhumanoid.outputs.animation import animate
 from jaxhumanoid.outputs.progress import Progress
 from jaxhumanoid.runtime import enable_compilation_cache
+from jaxhumanoid.solvers import ipopt_capi
 from jaxhumanoid.strategy.problem import stage_problem
 from jaxhumanoid.strategy.solution import Solution
 from jaxhumanoid.strategy.solve import solve
@@ -32,7 +34,7 @@ def parse_solver_options(pairs) -> dict:
     opts = {}
     for pair in pairs or []:
         if "=" not in pair:
-            raise SystemExit(f"--ipopt-option: expected key=value, got {pair!r}")
+            raise ValueError(f"--ipopt-option: expected KEY=VALUE, got {pair!r}")
         key, val = pair.split("=", 1)
         for cast in (int, float):
             try:
@@ -42,6 +44,27 @@ def parse_solver_options(pairs) -> dict:
                 continue
         opts[key.strip()] = val
     return opts
+
+
+def checked_options(args) -> dict:
+    """The ``--ipopt-option`` pairs, checked by IPOPT itself for the IPOPT-based solvers before
+    any problem is built (the own IPM checks its options when it builds them)."""
+    opts = parse_solver_options(args.ipopt_option)
+    if args.solver in ("ipopt", "casadi"):
+        ipopt_capi.check_options(opts)
+    return opts
+
+
+def writable_dir(path: str, field: str = "--out") -> pathlib.Path:
+    """``path`` as a directory that exists and takes files, made if needed, before any work."""
+    out = pathlib.Path(path)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=out, prefix=".write_test_"):
+            pass
+    except OSError as err:
+        raise ValueError(f"{field}: cannot write to {str(out)!r} ({err.strerror or err})") from err
+    return out
 
 
 def _write_figures(sol, out: pathlib.Path, with_animation: bool):
@@ -60,9 +83,10 @@ def _save(sol, out: pathlib.Path) -> dict:
 
 
 def cmd_solve(args) -> int:
-    out = pathlib.Path(args.out)
+    out = writable_dir(args.out)
+    options = checked_options(args)
     t0 = time.perf_counter()
-    sol = solve(args.task, args.scheme, solver=args.solver, N=args.N, T=args.T, options=parse_solver_options(args.ipopt_option), verbose=args.verbose)
+    sol = solve(args.task, args.scheme, solver=args.solver, N=args.N, T=args.T, options=options, verbose=args.verbose)
     report = _save(sol, out)
     _write_figures(sol, out, args.animate)
     if not args.quiet:
@@ -93,15 +117,15 @@ def _table2_markdown(records) -> str:
 
 
 def cmd_table2(args) -> int:
-    out = pathlib.Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = writable_dir(args.out)
+    options = checked_options(args)
     records = []
     tasks = args.tasks or ["T1", "T2", "T3", "T4"]
     schemes = args.schemes or list(TABLE2_SCHEMES)
     cells = [(t, s) for t in tasks for s in schemes]
     progress = Progress(len(cells), quiet=args.quiet)
     for task, scheme in progress.iter(cells, label=lambda c: f"{c[0]} {c[1]}"):
-        sol = solve(task, scheme, solver=args.solver, N=args.N, options=parse_solver_options(args.ipopt_option))
+        sol = solve(task, scheme, solver=args.solver, N=args.N, options=options)
         cell_dir = out / f"{task}_{scheme.replace(',', '_').replace('+', 'p')}"
         rec = _save(sol, cell_dir)
         records.append(rec)
@@ -117,6 +141,10 @@ def cmd_table2(args) -> int:
 
 
 def cmd_animate(args) -> int:
+    src = pathlib.Path(args.dir)
+    if not (src / "solution.npz").is_file():
+        what = "has no solution.npz" if src.is_dir() else "is not a directory"
+        raise ValueError(f"dir: {str(src)!r} {what}; give a directory written by `jaxhumanoid solve`")
     sol = Solution.load(args.dir)
     path = animate(sol, pathlib.Path(args.dir) / args.name)
     if not args.quiet:

@@ -17,9 +17,11 @@ after ``IpoptSolve`` returns, so an error in the model is never mistaken for a s
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import glob
 import os
+import sys
 from functools import lru_cache
 
 import cyipopt
@@ -95,6 +97,42 @@ def add_option(handle, key: str, val) -> None:
         ok = lib.AddIpoptNumOption(handle, k, float(val))
     if not ok:
         raise ValueError(f"options[{key!r}]: IPOPT rejected the option or its value {val!r} (see IPOPT's option list)")
+
+
+def _no_eval(*_args):
+    return False
+
+
+def check_options(options: dict) -> None:
+    """Raise ValueError naming the first option whose name or value IPOPT rejects, before any
+    problem is built: the options are given to a one-variable problem that is never solved."""
+    lib = library()
+    one = np.zeros(1)
+    cbs = (EVAL_F(_no_eval), EVAL_G(_no_eval), EVAL_GRAD_F(_no_eval), EVAL_JAC_G(_no_eval), EVAL_H(_no_eval))
+    handle = lib.CreateIpoptProblem(1, _ptr(one), _ptr(one), 0, _ptr(one), _ptr(one), 0, 0, 0, *cbs)
+    if not handle:
+        raise RuntimeError("IPOPT could not create the problem (CreateIpoptProblem returned NULL)")
+    try:
+        with _silenced_stdout():  # IPOPT prints its own complaint; the ValueError says it once
+            for key, val in options.items():
+                add_option(handle, key, val)
+    finally:
+        lib.FreeIpoptProblem(handle)
+
+
+@contextlib.contextmanager
+def _silenced_stdout():
+    """Send the process's file descriptor 1 (where IPOPT's journalist writes) to /dev/null."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 1)
+        yield
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
+        os.close(devnull)
 
 
 def solve(n, m, xl, xu, gl, gu, jac_structure, hess_structure, funcs: dict, options: dict, x0, mult_g=None, mult_x_L=None, mult_x_U=None):
