@@ -243,6 +243,27 @@ def test_restoration_return_test(shifted):
                                                  jnp.zeros(2)))
 
 
+def test_leaving_restoration_steps_the_bound_multipliers(shifted):
+    """Back in the original problem, z takes one complementarity step as if the restoration had
+    been one primal step from x_R to x: dz = ((a - b) z + mu)/a - z with a = x_R - xl, b = x - xl,
+    cut by the fraction to the boundary; above bound_mult_reset_threshold all reset to 1."""
+    ctx, _, S = shifted
+    P = box_prob([0.0, -INF], [INF, INF], [0.0, 0.0], [0.0, 0.0])
+
+    def leave(x_r, x, z):
+        start = S._replace(it=S.it._replace(x=jnp.array([x_r, 0.0]), zl=jnp.array([z, 0.0])))
+        R = restoration.enter_restoration(ctx, P, start, 0.1, 3.0, 0.5).rs
+        return restoration.leave_restoration(ctx, P, S._replace(rs=R, it=S.it._replace(x=jnp.array([x, 0.0]))))
+
+    out = leave(1.0, 2.0, 2.0)
+    dz = ((1.0 - 2.0) * 2.0 + 0.1) / 1.0 - 2.0
+    a_du = 0.99 * 2.0 / -dz
+    assert float(out.it.zl[0]) == pytest.approx(2.0 + a_du * dz) and float(out.it.zl[0]) == pytest.approx(0.02)
+    assert not bool(out.rs.on) and float(out.mu) == 0.1 and float(jnp.max(jnp.abs(out.it.y))) == 0.0
+    out = leave(1e-5, 1e-5, 0.0)            # dz = mu / a = 1e4
+    np.testing.assert_array_equal(out.it.zl, [1.0, 0.0])
+
+
 # ---------------------------------------------------------------- termination
 def test_optimality_errors_known_values():
     """min x0 s.t. x0 - x1 = 0, x0 >= 0 at x = (1, 1), y = 0.5, z_l = (1.5, 0), mu = 0.5:

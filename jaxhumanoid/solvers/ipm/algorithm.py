@@ -30,7 +30,7 @@ from jaxhumanoid.solvers.ipm.direction import Newton, search_direction
 from jaxhumanoid.solvers.ipm.filter import filter_add, filter_reset
 from jaxhumanoid.solvers.ipm.linesearch import LineSearch, line_search
 from jaxhumanoid.solvers.ipm.options import IPMOptions, make_options
-from jaxhumanoid.solvers.ipm.problem import Context, derivs, evaluate, make_context, make_prob, push, theta_of
+from jaxhumanoid.solvers.ipm.problem import Context, derivs, evaluate, make_context, make_prob, push, solution, theta_of
 from jaxhumanoid.solvers.ipm.restoration import (
     enter_restoration,
     leave_restoration,
@@ -44,6 +44,7 @@ from jaxhumanoid.solvers.ipm.state import (
     Evals,
     Iterate,
     Prob,
+    Solution,
     State,
     StepInfo,
     Watchdog,
@@ -172,10 +173,13 @@ def transition(ctx: Context, P: Prob, S: State, S_acc: State, ls: LineSearch, mu
     start_resto = ls_failed & ~S.cur_acc & ~resto
     resto_failed = ls_failed & resto
     S_next = S._replace(**{f: tree_where(ls.accepted, getattr(S_acc, f), getattr(S, f)) for f in ("it", "rs", "gl")})
-    S_next = lax.cond(start_resto,
-                      lambda s_: enter_restoration(ctx, P, s_._replace(gl=filter_add(ctx.o, s_.gl, ls.theta_k, ls.phi_k)),
-                                                   mu, ls.theta_k, ls.phi_k),
-                      lambda s_: s_._replace(mu=mu), S_next)
+
+    def start(s_):
+        # the outer filter takes the current iterate before it is stashed
+        s_ = s_._replace(gl=filter_add(ctx.o, s_.gl, ls.theta_k, ls.phi_k))
+        return enter_restoration(ctx, P, s_, mu, ls.theta_k, ls.phi_k)
+
+    S_next = lax.cond(start_resto, start, lambda s_: s_._replace(mu=mu), S_next)
     back = ls.accepted & resto & restoration_done(ctx.o, P, S.rs, ls.f, ls.g, S_acc.it.x, S_acc.it.s)
     S_next = lax.cond(back, lambda s_: leave_restoration(ctx, P, s_), lambda s_: s_, S_next)
     f_next = jnp.where(ls.accepted, ls.f, S.ev.f)
@@ -222,7 +226,7 @@ def iteration(ctx: Context, P: Prob, S: State):
 
 def run(ctx: Context, x0, xl, xu, gl, gu, p):
     """The whole solve from the user's data: scaled problem, initial state, the loop.
-    Returns (final State, Prob); ``problem.unscale`` gives the solution in user units."""
+    Returns (final State, Prob) of the scaled problem (``problem.solution`` unscales)."""
     P, x0 = make_prob(ctx, x0, xl, xu, gl, gu, p)
     S = initial_state(ctx, P, x0)
     S = check(ctx, P, S, initial_info(S), running())
@@ -235,13 +239,15 @@ def run(ctx: Context, x0, xl, xu, gl, gu, p):
     return S, P
 
 
-def solve(nlp, options: IPMOptions, x0, xl, xu, gl, gu, p):
-    """Pure solver core: ``options`` a pytree (float leaves may be traced). Returns (State, Prob)."""
-    return run(make_context(nlp, options), x0, xl, xu, gl, gu, p)
+def solve(nlp, options: IPMOptions, x0, xl, xu, gl, gu, p) -> Solution:
+    """Pure solver core: ``options`` a pytree (float leaves may be traced)."""
+    ctx = make_context(nlp, options)
+    S, P = run(ctx, x0, xl, xu, gl, gu, p)
+    return solution(ctx, S, P)
 
 
 def make_ipm(nlp, options: IPMOptions | dict | None = None) -> Callable:
-    """``run(x0, xl, xu, gl, gu, p, opts=None) -> (State, Prob)``, jit/vmap-able, for this NLP;
+    """``run(x0, xl, xu, gl, gu, p, opts=None) -> Solution``, jit/vmap-able, for this NLP;
     ``opts`` (an IPMOptions, default ``options``) may carry traced float fields."""
     default = make_options(options)
 

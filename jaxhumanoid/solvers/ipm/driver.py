@@ -12,7 +12,7 @@ from jaxhumanoid.ocp.nlp import NLP, Bounds
 from jaxhumanoid.solvers.ipm.algorithm import solve
 from jaxhumanoid.solvers.ipm.log import format_log, trim_history
 from jaxhumanoid.solvers.ipm.options import IPMOptions, as_float64, make_options
-from jaxhumanoid.solvers.ipm.problem import unscale
+from jaxhumanoid.solvers.ipm.state import Solution
 from jaxhumanoid.solvers.result import NLPResult, constraint_violation
 from jaxhumanoid.solvers.status import SUCCESS, Status
 
@@ -24,11 +24,7 @@ def _core(nlp: NLP, batched: bool):
     key = ("ipm", batched)
     if key not in nlp.cache:
         def fn(x0, xl, xu, gl, gu, p, opts):
-            S, P = solve(nlp, opts, x0, xl, xu, gl, gu, p)
-            x, lam, zl, zu, f = unscale(S, P)
-            return dict(x=x, lam=lam, zl=zl, zu=zu, f=f, g=S.ev.g / P.sg, grad=S.ev.grad / P.sf,
-                        jac=S.ev.jac / P.sg[np.asarray(nlp.jac_rows)], status=S.status,
-                        k=S.k, hist=S.hist, resto_iters=S.resto_iters, fixed=P.fixed)
+            return solve(nlp, opts, x0, xl, xu, gl, gu, p)
 
         vfn = jax.vmap(fn, in_axes=(0, 0, 0, 0, 0, 0, None)) if batched else fn
         nlp.cache[key] = {"fn": jax.jit(vfn), "compiled": {}}
@@ -42,35 +38,35 @@ def _check_shapes(nlp, x0, bounds):
         raise ValueError(f"bounds.gl must have shape ({nlp.m},), got {np.shape(bounds.gl)}")
 
 
-def _fixed_multipliers(nlp, out, lam):
+def _fixed_multipliers(nlp, out: Solution, lam):
     """Bound multipliers of fixed variables from the stationarity residual (make_parameter)."""
-    fixed = np.asarray(out["fixed"])
+    fixed = np.asarray(out.fixed)
     if not fixed.any():
-        return np.asarray(out["zl"]), np.asarray(out["zu"])
+        return np.asarray(out.zl), np.asarray(out.zu)
     jt = np.zeros(nlp.n)
-    np.add.at(jt, np.asarray(nlp.jac_cols), np.asarray(out["jac"]) * lam[np.asarray(nlp.jac_rows)])
-    r = np.asarray(out["grad"]) + jt
-    zl = np.where(fixed, np.maximum(r, 0.0), np.asarray(out["zl"]))
-    zu = np.where(fixed, np.maximum(-r, 0.0), np.asarray(out["zu"]))
+    np.add.at(jt, np.asarray(nlp.jac_cols), np.asarray(out.jac) * lam[np.asarray(nlp.jac_rows)])
+    r = np.asarray(out.grad) + jt
+    zl = np.where(fixed, np.maximum(r, 0.0), np.asarray(out.zl))
+    zu = np.where(fixed, np.maximum(-r, 0.0), np.asarray(out.zu))
     return zl, zu
 
 
-def _package(nlp, out, bounds, opts, solve_time, compile_time):
-    code = Status(int(out["status"]))
+def _package(nlp, out: Solution, bounds, opts, solve_time, compile_time):
+    code = Status(int(out.status))
     status = code.name
-    k = int(out["k"])
-    x = np.asarray(out["x"])
-    lam = np.asarray(out["lam"])
+    k = int(out.k)
+    x = np.asarray(out.x)
+    lam = np.asarray(out.lam)
     zl, zu = _fixed_multipliers(nlp, out, lam)
-    history = trim_history(out["hist"], k) if opts.keep_history else None
+    history = trim_history(out.hist, k) if opts.keep_history else None
     header = f"jaxhumanoid IPM on {nlp.name}: n={nlp.n}, m={nlp.m}"
     log = format_log(history, k, status, header=header) if history else None
     if history is not None and opts.print_level > 0:
         print(log)
-    viol = constraint_violation(np.asarray(out["g"]), x, bounds.gl, bounds.gu, bounds.xl, bounds.xu)
+    viol = constraint_violation(np.asarray(out.g), x, bounds.gl, bounds.gu, bounds.xl, bounds.xu)
     return NLPResult(x=x, lam_g=lam, z_l=zl, z_u=zu, status=status, success=code in SUCCESS,
                      iterations=k, solve_time_s=solve_time, compile_time_s=compile_time,
-                     objective=float(out["f"]), max_constraint_violation=viol, history=history, log=log)
+                     objective=float(out.f), max_constraint_violation=viol, history=history, log=log)
 
 
 def _compile_and_run(core, args):
@@ -126,7 +122,7 @@ def batch_solve_ipm(nlp: NLP, p_batch, bounds: Bounds, x0=None, options=None) ->
     out, solve_time, compile_time = _compile_and_run(core, args)
     results = []
     for b in range(nbatch):
-        ob = jax.tree.map(lambda a: a[b], out)
+        ob = jax.tree.map(lambda a, b=b: a[b], out)
         bb = Bounds(arrs[0][b], arrs[1][b], arrs[2][b], arrs[3][b], arrs[4][b])
         results.append(_package(nlp, ob, bb, opts, solve_time, compile_time))
     return results

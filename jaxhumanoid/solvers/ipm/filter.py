@@ -1,9 +1,10 @@
 """The filter of the line search (IPOPT paper, Sec. 2.3): a set of (theta, phi) pairs that a trial
-point must not be dominated by, (21), stored in a ring buffer of ``filter_size`` entries.
+point must not be dominated by, stored in a ring buffer of ``filter_size`` entries.
 
-A trial (theta, phi) is acceptable to the filter when theta <= theta_max and no entry has
-theta_i <= theta and phi_i <= phi. Augmenting with the current iterate's (theta_k, phi_k) adds
-((1 - gamma_theta) theta_k, phi_k - gamma_phi theta_k), the margins of (18), as in (22).
+A trial (theta, phi) is acceptable to the filter when theta <= theta_max (the initial filter
+(21)) and no entry has theta_i <= theta and phi_i <= phi. Augmenting with the current iterate's
+(theta_k, phi_k) adds ((1 - gamma_theta) theta_k, phi_k - gamma_phi theta_k), the margins of
+(18), as in (22).
 """
 
 from __future__ import annotations

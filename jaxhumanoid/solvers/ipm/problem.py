@@ -18,7 +18,7 @@ import numpy as np
 
 from jaxhumanoid.solvers.ipm import kkt
 from jaxhumanoid.solvers.ipm.options import IPMOptions
-from jaxhumanoid.solvers.ipm.state import Prob, State
+from jaxhumanoid.solvers.ipm.state import Prob, Solution, State
 
 
 class Context(NamedTuple):
@@ -166,3 +166,11 @@ def unscale(S: State, P: Prob):
     it = S.it
     lam = it.y * P.sg / P.sf
     return it.x, lam, it.zl / P.sf, it.zu / P.sf, S.ev.f / P.sf
+
+
+def solution(ctx: Context, S: State, P: Prob) -> Solution:
+    """The final state in the user's units (``unscale``) with the unscaled evaluations."""
+    x, lam, zl, zu, f = unscale(S, P)
+    return Solution(x=x, lam=lam, zl=zl, zu=zu, f=f, g=S.ev.g / P.sg, grad=S.ev.grad / P.sf,
+                    jac=S.ev.jac / P.sg[ctx.jr], status=S.status, k=S.k, hist=S.hist,
+                    resto_iters=S.resto_iters, fixed=P.fixed)

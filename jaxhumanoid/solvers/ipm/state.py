@@ -173,3 +173,23 @@ class Direction(NamedTuple):
     dy: jax.Array
     dp: jax.Array
     dn: jax.Array
+
+
+class Solution(NamedTuple):
+    """A finished solve in the user's units: x, bound multipliers zl, zu (n,), constraint
+    multipliers lam (m,) (IPOPT's sign convention), objective f, constraints g (m,), gradient
+    grad (n,) and Jacobian values jac at x, the ``Status`` code, the iteration count k, the
+    history arrays, the restoration iterations and the mask of fixed variables."""
+    x: jax.Array
+    lam: jax.Array
+    zl: jax.Array
+    zu: jax.Array
+    f: jax.Array
+    g: jax.Array
+    grad: jax.Array
+    jac: jax.Array
+    status: jax.Array
+    k: jax.Array
+    hist: dict
+    resto_iters: jax.Array
+    fixed: jax.Array
