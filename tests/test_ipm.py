@@ -1,14 +1,18 @@
 """The own interior-point method on Hock-Schittkowski problems, a restoration case, an infeasible
 problem, a staged optimal-control problem, a vmap batch, warm start and option validation."""
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import jaxhumanoid  # noqa: F401  (float64)
-import jax.numpy as jnp
-
+from jaxhumanoid.model.params import ContactParams
+from jaxhumanoid.ocp.nlp import Bounds
 from jaxhumanoid.validation import testproblems as tp
-from jaxhumanoid.solvers.ipm import IPMOptions, batch_solve_ipm, solve_ipm
+from jaxhumanoid.solvers.ipm import IPMOptions, batch_solve_ipm, kkt, solve_ipm
+from jaxhumanoid.solvers.ipopt import solve_cyipopt_reference, solve_ipopt
+from jaxhumanoid.strategy import solve as strat
+from jaxhumanoid.strategy.problem import build_problem
 
 # degenerate HS013 (no constraint qualification at x*): IPOPT 3.14 and the IPM both stop at
 # f = 0.994579 after 55 iterations, 5.4e-3 from f* = 1
@@ -51,9 +55,6 @@ def test_restoration_phase_as_ipopt_on_wachter_biegler_example(x0, status):
     """The filter line search fails on this example and both starts enter the l1 restoration
     phase; IPOPT 3.14 then ends at the locally infeasible point (-1, 0, 0) from the paper's start
     and at the optimum from the other one. The IPM must do the same, in as many iterations."""
-    from jaxhumanoid.ocp.nlp import Bounds
-    from jaxhumanoid.solvers.ipopt import solve_ipopt
-
     nlp, b, p, f_star = tp.wachter_biegler()
     bounds = Bounds(np.array(x0), b.xl, b.xu, b.gl, b.gu)
     r = solve_ipm(nlp, p, bounds)
@@ -77,7 +78,6 @@ def test_infeasible_problem_detected():
 
 def test_staged_cartpole_block_tridiagonal_against_ipopt():
     nlp, bounds, p, _ = tp.cartpole_swingup(N=25, P=1)
-    from jaxhumanoid.solvers.ipm import kkt
     st = kkt.structure_of(nlp)
     assert st.S == 26 and st.nb == 10
     r = solve_ipm(nlp, p, bounds)
@@ -87,7 +87,6 @@ def test_staged_cartpole_block_tridiagonal_against_ipopt():
     np.testing.assert_array_equal(r.x[:4], bounds.xl[:4])
     np.testing.assert_array_equal(r.x[-4:], bounds.xl[-4:])
     pytest.importorskip("cyipopt")
-    from jaxhumanoid.solvers.ipopt import solve_cyipopt_reference
 
     _, info, _ = solve_cyipopt_reference(nlp, p, bounds)
     assert info["status"] == 0
@@ -137,11 +136,6 @@ def test_humanoid_pseudo_static_stage_small_n_as_ipopt():
     options. A fixed initial state makes one end pivot block structurally singular, which the
     elimination order must handle (kkt.build_structure); the iteration follows IPOPT's (filter,
     inertia correction, degeneracy test), so both reach the same optimum in as many iterations."""
-    from jaxhumanoid.model.params import ContactParams
-    from jaxhumanoid.solvers.ipopt import solve_ipopt
-    from jaxhumanoid.strategy import solve as strat
-    from jaxhumanoid.strategy.problem import build_problem
-
     relaxed = ContactParams.relaxed()
     final = build_problem("T3", "A,F+C,2S", N=20)
     q1, _ = strat.reseat_for_contact(final.p, final.p.q_start, final.layout.active, relaxed)
@@ -169,8 +163,6 @@ def test_humanoid_pseudo_static_stage_small_n_as_ipopt():
 def test_full_task_t3_two_stage_as_ipopt():
     """The paper's T3 with A,F+C,2S at N = 100: both stages succeed with the IPM and reach
     IPOPT's optimum (objective and trajectory), in no more iterations than 1.5x IPOPT's."""
-    from jaxhumanoid.strategy import solve as strat
-
     a = strat.solve("T3", "A,F+C,2S", solver="ipm")
     b = strat.solve("T3", "A,F+C,2S", solver="ipopt")
     assert [s.status for s in a.stages] == ["Solve_Succeeded"] * 2, [s.status for s in a.stages]

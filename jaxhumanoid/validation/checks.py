@@ -84,7 +84,7 @@ def sample_points(bounds, num_points: int, seed: int = 0) -> np.ndarray:
 
 
 def cross_validate(problem, points: int = 3, x=None, seed: int = 0, tol: float = CROSS_TOL, zero_tol: float = 1e-13) -> list[CheckRow]:
-    """Compare ``problem.nlp`` with its CasADi twin (``solvers.casadi_backend``) at ``points`` random
+    """Compare ``problem.nlp`` with its CasADi twin (``validation.casadi_backend``) at ``points`` random
     points inside the bounds (and at ``x`` if given), with random multipliers lam ~ N(0, 1) and
     sigma ~ U(0.5, 2) for the Lagrangian Hessian.
 

@@ -9,32 +9,26 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxhumanoid.ocp.nlp import NLP, Bounds
-from jaxhumanoid.solvers.ipm.algorithm import STATUS, SUCCESS_CODES, make_ipm, unscale
+from jaxhumanoid.solvers.ipm.algorithm import solve
 from jaxhumanoid.solvers.ipm.log import format_log, trim_history
-from jaxhumanoid.solvers.ipm.options import IPMOptions, float_vector, make_options, static_part
+from jaxhumanoid.solvers.ipm.options import IPMOptions, as_float64, make_options
+from jaxhumanoid.solvers.ipm.state import Solution
 from jaxhumanoid.solvers.result import NLPResult, constraint_violation
+from jaxhumanoid.solvers.status import SUCCESS, Status
 
 
-def _core(nlp: NLP, opts: IPMOptions, batched: bool):
-    """jit (and vmap) of the solver core, cached on the NLP instance per options."""
-    cache = getattr(nlp, "_ipm_cache", None)
-    if cache is None:
-        cache = {}
-        object.__setattr__(nlp, "_ipm_cache", cache)
-    key = (static_part(opts), batched)
-    if key not in cache:
-        run = make_ipm(nlp, static_part(opts))
-
-        def fn(x0, xl, xu, gl, gu, p, fopts):
-            S, P = run(x0, xl, xu, gl, gu, p, fopts)
-            x, lam, zl, zu, f = unscale(S, P)
-            return dict(x=x, lam=lam, zl=zl, zu=zu, f=f, g=S.ev.g / P.sg, grad=S.ev.grad / P.sf,
-                        jac=S.ev.jac / P.sg[np.asarray(nlp.jac_rows)], status=S.status,
-                        k=S.k, hist=S.hist, resto_iters=S.resto_iters, fixed=P.fixed)
+def _core(nlp: NLP, batched: bool):
+    """jit (and vmap) of the solver core, cached in ``nlp.cache``: the jitted function of
+    (x0, xl, xu, gl, gu, p, options) and its compiled executables, one per argument structure
+    (the static options are part of the options' pytree structure) and shapes."""
+    key = ("ipm", batched)
+    if key not in nlp.cache:
+        def fn(x0, xl, xu, gl, gu, p, opts):
+            return solve(nlp, opts, x0, xl, xu, gl, gu, p)
 
         vfn = jax.vmap(fn, in_axes=(0, 0, 0, 0, 0, 0, None)) if batched else fn
-        cache[key] = {"fn": jax.jit(vfn), "compiled": {}}
-    return cache[key]
+        nlp.cache[key] = {"fn": jax.jit(vfn), "compiled": {}}
+    return nlp.cache[key]
 
 
 def _check_shapes(nlp, x0, bounds):
@@ -44,34 +38,35 @@ def _check_shapes(nlp, x0, bounds):
         raise ValueError(f"bounds.gl must have shape ({nlp.m},), got {np.shape(bounds.gl)}")
 
 
-def _fixed_multipliers(nlp, out, lam):
+def _fixed_multipliers(nlp, out: Solution, lam):
     """Bound multipliers of fixed variables from the stationarity residual (make_parameter)."""
-    fixed = np.asarray(out["fixed"])
+    fixed = np.asarray(out.fixed)
     if not fixed.any():
-        return np.asarray(out["zl"]), np.asarray(out["zu"])
+        return np.asarray(out.zl), np.asarray(out.zu)
     jt = np.zeros(nlp.n)
-    np.add.at(jt, np.asarray(nlp.jac_cols), np.asarray(out["jac"]) * lam[np.asarray(nlp.jac_rows)])
-    r = np.asarray(out["grad"]) + jt
-    zl = np.where(fixed, np.maximum(r, 0.0), np.asarray(out["zl"]))
-    zu = np.where(fixed, np.maximum(-r, 0.0), np.asarray(out["zu"]))
+    np.add.at(jt, np.asarray(nlp.jac_cols), np.asarray(out.jac) * lam[np.asarray(nlp.jac_rows)])
+    r = np.asarray(out.grad) + jt
+    zl = np.where(fixed, np.maximum(r, 0.0), np.asarray(out.zl))
+    zu = np.where(fixed, np.maximum(-r, 0.0), np.asarray(out.zu))
     return zl, zu
 
 
-def _package(nlp, out, bounds, opts, solve_time, compile_time):
-    code = int(out["status"])
-    status = STATUS[code]
-    k = int(out["k"])
-    x = np.asarray(out["x"])
-    lam = np.asarray(out["lam"])
+def _package(nlp, out: Solution, bounds, opts, solve_time, compile_time):
+    code = Status(int(out.status))
+    status = code.name
+    k = int(out.k)
+    x = np.asarray(out.x)
+    lam = np.asarray(out.lam)
     zl, zu = _fixed_multipliers(nlp, out, lam)
-    history = trim_history(out["hist"], k) if opts.keep_history else None
-    log = format_log(history, k, status, header=f"jaxhumanoid IPM on {nlp.name}: n={nlp.n}, m={nlp.m}") if history else None
+    history = trim_history(out.hist, k) if opts.keep_history else None
+    header = f"jaxhumanoid IPM on {nlp.name}: n={nlp.n}, m={nlp.m}"
+    log = format_log(history, k, status, header=header) if history else None
     if history is not None and opts.print_level > 0:
         print(log)
-    viol = constraint_violation(np.asarray(out["g"]), x, bounds.gl, bounds.gu, bounds.xl, bounds.xu)
-    return NLPResult(x=x, lam_g=lam, z_l=zl, z_u=zu, status=status, success=code in SUCCESS_CODES,
+    viol = constraint_violation(np.asarray(out.g), x, bounds.gl, bounds.gu, bounds.xl, bounds.xu)
+    return NLPResult(x=x, lam_g=lam, z_l=zl, z_u=zu, status=status, success=code in SUCCESS,
                      iterations=k, solve_time_s=solve_time, compile_time_s=compile_time,
-                     objective=float(out["f"]), max_constraint_violation=viol, history=history, log=log)
+                     objective=float(out.f), max_constraint_violation=viol, history=history, log=log)
 
 
 def _compile_and_run(core, args):
@@ -100,9 +95,9 @@ def solve_ipm(nlp: NLP, p, bounds: Bounds, x0=None, options: IPMOptions | dict |
     opts = make_options(options)
     x0 = np.asarray(bounds.x0 if x0 is None else x0, dtype=float)
     _check_shapes(nlp, x0, bounds)
-    core = _core(nlp, opts, batched=False)
+    core = _core(nlp, batched=False)
     args = (jnp.asarray(x0), jnp.asarray(bounds.xl, float), jnp.asarray(bounds.xu, float),
-            jnp.asarray(bounds.gl, float), jnp.asarray(bounds.gu, float), p, jnp.asarray(float_vector(opts)))
+            jnp.asarray(bounds.gl, float), jnp.asarray(bounds.gu, float), p, as_float64(opts))
     out, solve_time, compile_time = _compile_and_run(core, args)
     return _package(nlp, out, bounds, opts, solve_time, compile_time)
 
@@ -122,12 +117,12 @@ def batch_solve_ipm(nlp: NLP, p_batch, bounds: Bounds, x0=None, options=None) ->
         return np.broadcast_to(a, (nbatch, size)) if a.ndim == 1 else a
 
     arrs = [bc(x0, nlp.n), bc(bounds.xl, nlp.n), bc(bounds.xu, nlp.n), bc(bounds.gl, nlp.m), bc(bounds.gu, nlp.m)]
-    core = _core(nlp, opts, batched=True)
-    args = tuple(jnp.asarray(a) for a in arrs) + (p_batch, jnp.asarray(float_vector(opts)))
+    core = _core(nlp, batched=True)
+    args = tuple(jnp.asarray(a) for a in arrs) + (p_batch, as_float64(opts))
     out, solve_time, compile_time = _compile_and_run(core, args)
     results = []
     for b in range(nbatch):
-        ob = jax.tree.map(lambda a: a[b], out)
+        ob = jax.tree.map(lambda a, b=b: a[b], out)
         bb = Bounds(arrs[0][b], arrs[1][b], arrs[2][b], arrs[3][b], arrs[4][b])
         results.append(_package(nlp, ob, bb, opts, solve_time, compile_time))
     return results

@@ -2,16 +2,23 @@
 
 References are to Waechter & Biegler (2006), "On the implementation of an interior-point filter
 line-search algorithm for large-scale nonlinear programming", Math. Program. 106:25-57 (the IPOPT
-paper). Every field is static (hashable), so an ``IPMOptions`` can be closed over by ``jit``.
+paper).
+
+``IPMOptions`` is a JAX pytree: its float fields (tolerances, mu_init, ...) are the leaves, so a
+jitted solver takes them as runtime inputs and a new value does not recompile; the integer,
+boolean and string fields shape the compiled loop (array sizes, branches) and are static pytree
+metadata, so a new value compiles a new solver.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-
-import numpy as np
+import numbers
 from typing import Any
+
+import jax
+import numpy as np
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,8 +68,8 @@ class IPMOptions:
     eta_phi: float = 1e-8
     alpha_min_frac: float = 0.05
     max_ls_trials: int = 40
-    # IPOPT's watchdog (IPOPT's default trigger is 10). Off by default here: on T1's stage 2 it
-    # turned a 2287-iteration success into a 3000-iteration failure (README)
+    # IPOPT's watchdog (IPOPT's default trigger is 10). Off by default here: with it, T1's stage 2
+    # ends at max_iter instead of converging (README)
     watchdog_shortened_iter_trigger: int = 0
     watchdog_trial_iter_max: int = 3
     filter_size: int = 256
@@ -84,7 +91,7 @@ class IPMOptions:
     min_refinement_steps: int = 1
     max_refinement_steps: int = 10
     residual_ratio_max: float = 1e-10
-    # feasibility restoration (Sec. 3.3): the l1 restoration problem (see algorithm.Resto)
+    # feasibility restoration (Sec. 3.3): the l1 restoration problem (see state.Resto)
     max_resto_iter: int = 3000000
     kappa_resto: float = 0.9                    # IPOPT's required_infeasibility_reduction
     resto_penalty_parameter: float = 1000.0     # rho
@@ -96,9 +103,12 @@ class IPMOptions:
     keep_history: bool = True
 
     def __post_init__(self):
-        validate(self)
+        # JAX rebuilds the options from traced leaves inside jit and vmap; those were validated
+        # as the concrete numbers they came from
+        if all(isinstance(getattr(self, name), numbers.Real) for name in FLOAT_FIELDS):
+            validate(self)
 
-    def replace(self, **kw: Any) -> "IPMOptions":
+    def replace(self, **kw: Any) -> IPMOptions:
         return dataclasses.replace(self, **kw)
 
 
@@ -115,10 +125,11 @@ _POSITIVE = (
     "resto_penalty_parameter", "resto_proximity_weight", "resto_theta_max_fact", "bound_mult_reset_threshold",
 )
 _OPEN_UNIT = ("kappa_mu", "tau_min", "perturb_dec_fact", "kappa_soc", "kappa_resto")
-_NONNEG_INT = ("acceptable_iter", "max_soc", "min_refinement_steps", "max_refinement_steps", "print_level", "degen_iters_max",
-               "watchdog_shortened_iter_trigger")
+_NONNEG_INT = ("acceptable_iter", "max_soc", "min_refinement_steps", "max_refinement_steps", "print_level",
+               "degen_iters_max", "watchdog_shortened_iter_trigger")
 
-_POS_INT = ("max_iter", "max_ls_trials", "filter_size", "max_inertia_trials", "max_resto_iter", "watchdog_trial_iter_max")
+_POS_INT = ("max_iter", "max_ls_trials", "filter_size", "max_inertia_trials", "max_resto_iter",
+            "watchdog_trial_iter_max")
 SCALING_METHODS = ("gradient-based", "none")
 
 
@@ -180,29 +191,10 @@ def make_options(options: IPMOptions | dict | None) -> IPMOptions:
 
 
 FLOAT_FIELDS = tuple(f.name for f in dataclasses.fields(IPMOptions) if f.type in ("float", float))
+STATIC_FIELDS = tuple(f.name for f in dataclasses.fields(IPMOptions) if f.name not in FLOAT_FIELDS)
+jax.tree_util.register_dataclass(IPMOptions, data_fields=list(FLOAT_FIELDS), meta_fields=list(STATIC_FIELDS))
 
 
-def static_part(o: IPMOptions) -> IPMOptions:
-    """The options with every float field at its default: the part that shapes the compiled code
-    (float options are passed to the compiled solver as a runtime vector, see ``float_vector``)."""
-    defaults = IPMOptions()
-    return dataclasses.replace(o, **{name: getattr(defaults, name) for name in FLOAT_FIELDS})
-
-
-def float_vector(o: IPMOptions) -> np.ndarray:
-    return np.array([float(getattr(o, name)) for name in FLOAT_FIELDS])
-
-
-class TracedOptions:
-    """Read-only view: float options from a (possibly traced) vector, the rest from ``static``."""
-
-    def __init__(self, static: IPMOptions, values):
-        self._static = static
-        self._values = values
-        self._index = {name: i for i, name in enumerate(FLOAT_FIELDS)}
-
-    def __getattr__(self, name):
-        idx = self.__dict__["_index"]
-        if name in idx:
-            return self.__dict__["_values"][idx[name]]
-        return getattr(self.__dict__["_static"], name)
+def as_float64(o: IPMOptions) -> IPMOptions:
+    """The options with every float leaf a NumPy float64 (a strongly typed jit input)."""
+    return jax.tree.map(np.float64, o)

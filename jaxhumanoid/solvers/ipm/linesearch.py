@@ -1,0 +1,251 @@
+"""Step A-5 of the IPOPT paper's algorithm: the backtracking filter line search (Sec. 2.3-2.4).
+
+From alpha_max of the fraction to the boundary (15), trial step sizes are halved until a trial
+point is acceptable: to the filter (``filter``) and, when the switching condition (19)
+grad phi^T d < 0 and alpha (-grad phi^T d)^s_phi > delta theta^s_theta holds at a small theta
+(<= theta_min), by the Armijo condition (20) phi <= phi_k + eta_phi alpha grad phi^T d, otherwise
+by the sufficient decrease (18) of theta or phi. Before backtracking, up to ``max_soc``
+second-order corrections (Sec. 2.4) are tried when the first trial did not reduce theta; below
+alpha_min (23) the line search fails (and the restoration phase starts). IPOPT's watchdog
+judges tentative full steps against the point where it started (``state.Watchdog``).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import lax
+
+from jaxhumanoid.solvers.ipm.direction import Newton, corrected_direction, directional_derivative
+from jaxhumanoid.solvers.ipm.filter import filter_ok
+from jaxhumanoid.solvers.ipm.options import IPMOptions
+from jaxhumanoid.solvers.ipm.problem import Context, evaluate
+from jaxhumanoid.solvers.ipm.restoration import merit, resto_resid
+from jaxhumanoid.solvers.ipm.state import Direction, Globalization, Iterate, Prob, Resto, State, Watchdog
+from jaxhumanoid.solvers.ipm.step import frac_dual, frac_to_boundary
+
+EPS = float(np.finfo(np.float64).eps)
+
+
+class Reference(NamedTuple):
+    """The point trial points are judged against: the current iterate, or the watchdog's start."""
+    theta: jax.Array
+    phi: jax.Array
+    gd: jax.Array           # directional derivative grad phi^T d
+
+
+class Trial(NamedTuple):
+    """A trial point's evaluations, slacks and merit (theta, phi); inf where not finite."""
+    f: jax.Array
+    g: jax.Array
+    s: jax.Array
+    theta: jax.Array
+    phi: jax.Array
+
+
+class SOC(NamedTuple):
+    """Loop state of the second-order corrections."""
+    p: jax.Array            # corrections done
+    csoc: jax.Array         # (m,) accumulated constraint residual of the next correction
+    theta_old: jax.Array
+    active: jax.Array
+    acc: jax.Array
+    ftype: jax.Array
+    a: jax.Array
+    d: Direction
+    f: jax.Array
+    g: jax.Array
+    s: jax.Array
+
+
+class Backtrack(NamedTuple):
+    """Loop state of the backtracking (alpha halved)."""
+    a: jax.Array
+    t: jax.Array            # trials made (the first trial at alpha_max included)
+    acc: jax.Array
+    ftype: jax.Array
+    f: jax.Array
+    g: jax.Array
+    s: jax.Array
+    fail: jax.Array
+
+
+class LineSearch(NamedTuple):
+    """Outcome of the line search of one iteration."""
+    accepted: jax.Array
+    a_pr: jax.Array         # primal step size taken
+    amax: jax.Array         # alpha_max of (15)
+    ftype: jax.Array        # f-type step (or one that leaves the filter alone)
+    d: Direction            # the direction taken (corrected or not)
+    f: jax.Array            # evaluations at the accepted trial
+    g: jax.Array
+    n_trials: jax.Array
+    use_soc: jax.Array
+    tiny: jax.Array         # the step is negligible (accepted without tests)
+    theta_k: jax.Array      # merit and directional derivative at the current iterate
+    phi_k: jax.Array
+    gd: jax.Array
+    ref: Reference
+    wd: Watchdog            # the watchdog at the start of the iteration (after a barrier update)
+    start_wd: jax.Array
+    in_wd: jax.Array
+    wd_tentative: jax.Array
+    wd_reset: jax.Array
+
+
+def alpha_min(o: IPMOptions, theta, theta_min, gd):
+    """Smallest step size (23) before the line search gives up, times alpha_min_frac."""
+    gd_neg = gd < 0
+    mgd = jnp.where(gd_neg, -gd, 1.0)
+    return o.alpha_min_frac * jnp.where(
+        gd_neg,
+        jnp.where(theta <= theta_min,
+                  jnp.minimum(o.gamma_theta, jnp.minimum(o.gamma_phi * theta / mgd,
+                                                         o.delta * theta ** o.s_theta / mgd ** o.s_phi)),
+                  jnp.minimum(o.gamma_theta, o.gamma_phi * theta / mgd)),
+        o.gamma_theta)
+
+
+def switching(o: IPMOptions, ref: Reference, a):
+    """Switching condition (19) at step size a."""
+    gd_neg = ref.gd < 0
+    mgd = jnp.where(gd_neg, -ref.gd, 1.0)
+    return gd_neg & (a * mgd ** o.s_phi > o.delta * ref.theta ** o.s_theta)
+
+
+def acceptable(o: IPMOptions, G: Globalization, ref: Reference, a, theta_t, phi_t):
+    """(accepted, filter not augmented): the Armijo test (20) applies when theta_ref <= theta_min
+    and the switching condition (19) holds, else the sufficient decrease (18); as in IPOPT's
+    implementation, the filter is left alone whenever the switching condition and Armijo hold,
+    whatever theta_ref."""
+    sw = switching(o, ref, a)
+    armijo = phi_t <= ref.phi + o.eta_phi * a * ref.gd
+    suff = (theta_t <= (1 - o.gamma_theta) * ref.theta) | (phi_t <= ref.phi - o.gamma_phi * ref.theta)
+    return filter_ok(G, theta_t, phi_t) & jnp.where((ref.theta <= G.theta_min) & sw, armijo, suff), sw & armijo
+
+
+def trial_eval(ctx: Context, P: Prob, R: Resto, x, s, pv, nv, mu) -> Trial:
+    """Evaluate a trial point (free rows' slacks follow g)."""
+    f, g = evaluate(ctx, P, x)
+    s = jnp.where(P.free, g, s)
+    theta, phi = merit(ctx.o, P, R, f, g, x, s, pv, nv, mu)
+    finite = jnp.isfinite(f) & jnp.all(jnp.isfinite(g)) & jnp.isfinite(phi)
+    return Trial(f, g, s, jnp.where(finite, theta, jnp.inf), jnp.where(finite, phi, jnp.inf))
+
+
+def trial_at(ctx: Context, P: Prob, it: Iterate, R: Resto, mu, a, d: Direction) -> Trial:
+    """The trial point at step size a along d."""
+    return trial_eval(ctx, P, R, it.x + a * d.dx, it.s + a * d.ds, R.p + a * d.dp, R.n + a * d.dn, mu)
+
+
+def step_max(P: Prob, it: Iterate, R: Resto, rr, tau, d: Direction):
+    """Fraction to the boundary (15) for x, s and, in the restoration phase, p, n."""
+    return jnp.minimum(frac_to_boundary(P, it.x, it.s, d.dx, d.ds, tau),
+                       jnp.minimum(frac_dual(R.p, d.dp, rr, tau), frac_dual(R.n, d.dn, rr, tau)))
+
+
+def tiny_step(it: Iterate, d: Direction, ok_step, resto):
+    """The step is below 10 eps relative to the iterate (IPOPT's tiny step)."""
+    tiny = jnp.max(jnp.abs(d.dx) / (1.0 + jnp.abs(it.x)), initial=0.0) < 10 * EPS
+    return tiny & (jnp.max(jnp.abs(d.ds) / (1.0 + jnp.abs(it.s)), initial=0.0) < 10 * EPS) & ok_step & ~resto
+
+
+def watchdog_start(o: IPMOptions, W: Watchdog, nupd, resto):
+    """The watchdog after a barrier update (which ends it and its count) and whether it starts:
+    after ``watchdog_shortened_iter_trigger`` shortened steps, outside the restoration phase."""
+    W = W._replace(count=jnp.where(nupd > 0, 0, W.count), on=W.on & (nupd == 0))
+    start = ((~W.on) & (~resto) & (W.count >= o.watchdog_shortened_iter_trigger)
+             & (o.watchdog_shortened_iter_trigger > 0) & (~W.skip_first))
+    return W, start
+
+
+def second_order_correction(ctx: Context, P: Prob, G: Globalization, it: Iterate, R: Resto, mu, tau, nw: Newton,
+                            ref: Reference, amax, first: Trial, active) -> SOC:
+    """Up to ``max_soc`` corrections (Sec. 2.4), each judged at alpha_max, while theta decreases
+    by kappa_soc."""
+    o = ctx.o
+    rr = R.on & ~P.free
+    d = nw.d
+    soc0 = SOC(jnp.zeros((), jnp.int32),
+               amax * nw.c + resto_resid(P, R, first.g, first.s, R.p + amax * d.dp, R.n + amax * d.dn), first.theta,
+               active, jnp.zeros((), bool), jnp.zeros((), bool), amax, d, first.f, first.g, first.s)
+
+    def body(Q):
+        d_s = corrected_direction(ctx, P, nw, Q.csoc)
+        a_s = step_max(P, it, R, rr, tau, d_s)
+        t = trial_at(ctx, P, it, R, mu, a_s, d_s)
+        acc, ftype = acceptable(o, G, ref, amax, t.theta, t.phi)
+        p = Q.p + 1
+        cont = (~acc) & (p < o.max_soc) & (t.theta <= o.kappa_soc * Q.theta_old)
+        csoc = a_s * Q.csoc + resto_resid(P, R, t.g, t.s, R.p + a_s * d_s.dp, R.n + a_s * d_s.dn)
+        return SOC(p, csoc, t.theta, cont, acc, ftype, a_s, d_s, t.f, t.g, t.s)
+
+    return lax.while_loop(lambda Q: Q.active, body, soc0)
+
+
+def backtrack(ctx: Context, P: Prob, G: Globalization, it: Iterate, R: Resto, mu, d: Direction, ref: Reference,
+              amax, a_min, first: Trial, start) -> Backtrack:
+    """Halve alpha from alpha_max / 2 until a trial is acceptable, below a_min or out of trials."""
+    o = ctx.o
+    ls0 = Backtrack(0.5 * amax, jnp.ones((), jnp.int32), jnp.zeros((), bool), jnp.zeros((), bool),
+                    first.f, first.g, first.s, (0.5 * amax < a_min) & start)
+
+    def body(L):
+        t = trial_at(ctx, P, it, R, mu, L.a, d)
+        acc, ftype = acceptable(o, G, ref, L.a, t.theta, t.phi)
+        a_next = 0.5 * L.a
+        fail = (~acc) & ((a_next < a_min) | (L.t + 1 >= o.max_ls_trials))
+        return Backtrack(jnp.where(acc, L.a, a_next), L.t + 1, acc, ftype, t.f, t.g, t.s, fail)
+
+    return lax.while_loop(lambda L: start & (~L.acc) & (~L.fail), body, ls0)
+
+
+def line_search(ctx: Context, P: Prob, S: State, nw: Newton, mu, tau, nupd) -> LineSearch:
+    """The line search of S's iterate along the Newton step: the first trial at alpha_max,
+    second-order corrections, backtracking, and the watchdog's tentative steps."""
+    o = ctx.o
+    it, ev, R = S.it, S.ev, S.rs
+    resto = R.on
+    rr = resto & ~P.free
+    d, ok_step = nw.d, nw.ok
+    theta_k, phi_k = merit(o, P, R, ev.f, ev.g, it.x, it.s, R.p, R.n, mu)
+    gd = directional_derivative(nw)
+    amax = step_max(P, it, R, rr, tau, d)
+    a_min = alpha_min(o, theta_k, S.gl.theta_min, gd)
+
+    # while the watchdog is on, trial points are judged against the point where it started
+    W, start_wd = watchdog_start(o, S.wd, nupd, resto)
+    in_wd = W.on | start_wd
+    ref = Reference(jnp.where(W.on, W.theta, theta_k), jnp.where(W.on, W.phi, phi_k), jnp.where(W.on, W.gd, gd))
+    tiny = tiny_step(it, d, ok_step, resto)
+
+    first = trial_at(ctx, P, it, R, mu, amax, d)
+    acc1, ft1 = acceptable(o, S.gl, ref, amax, first.theta, first.phi)
+    acc1 = (acc1 | tiny) & ~W.skip_first
+    # second-order corrections only if the first trial did not reduce theta
+    soc = second_order_correction(
+        ctx, P, S.gl, it, R, mu, tau, nw, ref, amax, first,
+        (~acc1) & (first.theta >= theta_k) & ok_step & (o.max_soc > 0) & ~in_wd & ~W.skip_first)
+    start_bt = (~acc1) & (~soc.acc) & ok_step & ~in_wd
+    ls = backtrack(ctx, P, S.gl, it, R, mu, d, ref, amax, a_min, first, start_bt)
+
+    # watchdog outcome: an acceptable full step ends it; otherwise the full step is taken
+    # tentatively, or, after watchdog_trial_iter_max of them, the iterate goes back
+    wd_fail = in_wd & ok_step & ~acc1
+    wd_reset = wd_fail & (W.trials + 1 > o.watchdog_trial_iter_max)
+    wd_tentative = wd_fail & ~wd_reset
+
+    use_soc = (~acc1) & soc.acc
+    use_bt = (~acc1) & (~soc.acc) & ls.acc
+    accepted = ok_step & (acc1 | soc.acc | ls.acc | wd_tentative)
+    a_pr = jnp.where(acc1 | wd_tentative, amax, jnp.where(use_soc, soc.a, ls.a))
+    ftype = jnp.where(acc1, ft1, jnp.where(use_soc, soc.ftype, ls.ftype)) | tiny | wd_tentative
+    d_taken = Direction(*(jnp.where(use_soc, a_, b_) for a_, b_ in zip(soc.d, d)))
+    f_new = jnp.where(acc1, first.f, jnp.where(use_soc, soc.f, ls.f))
+    g_new = jnp.where(acc1, first.g, jnp.where(use_soc, soc.g, ls.g))
+    n_trials = 1 + soc.p + jnp.where(use_bt | (~accepted), ls.t - 1, 0)
+    return LineSearch(accepted, a_pr, amax, ftype, d_taken, f_new, g_new, n_trials, use_soc, tiny, theta_k, phi_k,
+                      gd, ref, W, start_wd, in_wd, wd_tentative, wd_reset)

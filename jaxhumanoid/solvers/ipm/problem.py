@@ -1,0 +1,176 @@
+"""The scaled NLP the interior-point method iterates on, and the context every part reads.
+
+The user's problem min f(x) s.t. gl <= g(x) <= gu, xl <= x <= xu becomes (IPOPT paper, (1)-(2))
+
+    min sf f(x)  s.t.  sg g(x) - s = 0,  sg gl <= s <= sg gu,  xl <= x <= xu
+
+with gradient-based scaling factors sf, sg (Sec. 3.8), finite bounds relaxed by
+``bound_relax_factor``, fixed variables (xl == xu) as parameters, equality rows without a slack
+and rows without finite bounds ("free") ignored. Shapes: n variables, m constraints.
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import jax.numpy as jnp
+import numpy as np
+
+from jaxhumanoid.solvers.ipm import kkt
+from jaxhumanoid.solvers.ipm.options import IPMOptions
+from jaxhumanoid.solvers.ipm.state import Prob, Solution, State
+
+
+class Context(NamedTuple):
+    """What every part of the method reads and none changes: the NLP, the static structure of
+    its KKT matrix, the options (float fields possibly traced) and the sparsity patterns."""
+    nlp: Any
+    st: kkt.KKTStructure
+    o: IPMOptions
+    jr: np.ndarray      # (nnz_jac,) Jacobian rows / columns
+    jc: np.ndarray
+    hr: np.ndarray      # (nnz_hess,) Hessian rows / columns (lower triangle)
+    hc: np.ndarray
+
+    @property
+    def n(self) -> int:
+        return self.nlp.n
+
+    @property
+    def m(self) -> int:
+        return self.nlp.m
+
+
+def make_context(nlp, o: IPMOptions) -> Context:
+    return Context(nlp, kkt.structure_of(nlp), o, np.asarray(nlp.jac_rows, np.int64),
+                   np.asarray(nlp.jac_cols, np.int64), np.asarray(nlp.hess_rows, np.int64),
+                   np.asarray(nlp.hess_cols, np.int64))
+
+
+def segsum(vals, idx, size):
+    """(size,) sums of ``vals`` grouped by ``idx``."""
+    return jnp.zeros(size, dtype=vals.dtype).at[idx].add(vals)
+
+
+def evaluate(ctx: Context, P: Prob, x):
+    """Scaled objective () and constraints (m,) at x."""
+    f = P.sf * ctx.nlp.f(x, P.p)
+    g = P.sg * ctx.nlp.g(x, P.p)
+    return f, g
+
+
+def derivs(ctx: Context, P: Prob, x):
+    """Scaled gradient (n,) and Jacobian values (nnz_jac,) at x."""
+    grad = P.sf * ctx.nlp.grad(x, P.p)
+    jac = P.sg[ctx.jr] * ctx.nlp.jac_values(x, P.p)
+    return grad, jac
+
+
+def hessian(ctx: Context, P: Prob, x, y, resto):
+    """Hessian of the Lagrangian (nnz_hess,); the restoration problem's objective has none in x
+    besides the proximity term, which enters the diagonal (``restoration.prox_weight``)."""
+    return ctx.nlp.hess_values(x, P.sg * y, jnp.where(resto, 0.0, P.sf), P.p)
+
+
+def jt_mult(ctx: Context, jac, y):
+    """J^T y (n,) from the Jacobian values."""
+    return segsum(jac * y[ctx.jr], ctx.jc, ctx.n)
+
+
+def slacks(P: Prob, x, s):
+    """Distances to the finite bounds x - xl, xu - x, s - gl, gu - s (1 where no bound)."""
+    dxl = jnp.where(P.hxl, x - P.xl, 1.0)
+    dxu = jnp.where(P.hxu, P.xu - x, 1.0)
+    dsl = jnp.where(P.hsl, s - P.gl, 1.0)
+    dsu = jnp.where(P.hsu, P.gu - s, 1.0)
+    return dxl, dxu, dsl, dsu
+
+
+def constr_resid(P: Prob, g, s):
+    """c(x, s) = g(x) - s on equality and bounded inequality rows (free rows: 0)."""
+    c = jnp.where(P.eq, g - P.gl, g - s)
+    return jnp.where(P.free, 0.0, c)
+
+
+def theta_of(P: Prob, g, s):
+    """Constraint violation ||c(x, s)||_1."""
+    return jnp.sum(jnp.abs(constr_resid(P, g, s)))
+
+
+def masks(ctx: Context, P: Prob):
+    """Hessian and Jacobian entries that enter K (fixed variables and free rows drop out)."""
+    return (jnp.where(P.fixed[ctx.hr] | P.fixed[ctx.hc], 0.0, 1.0),
+            jnp.where(P.free[ctx.jr] | P.fixed[ctx.jc], 0.0, 1.0))
+
+
+def relax(b, mask, sign, factor):
+    """IPOPT's bound relaxation: b + sign * factor * max(1, |b|) where ``mask``."""
+    return jnp.where(mask, b + sign * factor * jnp.maximum(1.0, jnp.abs(b)), b)
+
+
+def scaling(ctx: Context, x0, fixed, p):
+    """Objective and constraint scaling factors sf (), sg (m,): gradient-based (Sec. 3.8) at the
+    starting point, max gradient entry scaled down to ``nlp_scaling_max_gradient``."""
+    o, m = ctx.o, ctx.m
+    if o.nlp_scaling_method == "gradient-based":
+        g0 = ctx.nlp.grad(x0, p)
+        j0 = ctx.nlp.jac_values(x0, p)
+        gmax = jnp.max(jnp.abs(jnp.where(fixed, 0.0, g0)), initial=0.0)
+        sf = jnp.maximum(o.nlp_scaling_min_value,
+                         jnp.minimum(1.0, o.nlp_scaling_max_gradient / jnp.maximum(gmax, 1e-300)))
+        rmax = jnp.zeros(m).at[ctx.jr].max(jnp.abs(j0))
+        sg = jnp.maximum(o.nlp_scaling_min_value,
+                         jnp.minimum(1.0, o.nlp_scaling_max_gradient / jnp.maximum(rmax, 1e-300)))
+        sf = jnp.where(jnp.isfinite(sf), sf, 1.0) * o.obj_scaling_factor
+        sg = jnp.where(jnp.isfinite(sg), sg, 1.0)
+    else:
+        sf = jnp.asarray(o.obj_scaling_factor, float)
+        sg = jnp.ones(m)
+    return sf, sg
+
+
+def make_prob(ctx: Context, x0, xl, xu, gl, gu, p):
+    """The scaled problem's data and the starting point with fixed variables at their value.
+
+    Finite variable and inequality bounds are relaxed (``bound_relax_factor``); like IPOPT 3.14
+    (honor_original_bounds = no) the final x is not projected back, which would break the
+    stationarity of the returned multipliers."""
+    x0, xl, xu, gl, gu = (jnp.asarray(a, dtype=float) for a in (x0, xl, xu, gl, gu))
+    fixed = xl == xu
+    eq = gl == gu
+    hxl = jnp.isfinite(xl) & ~fixed
+    hxu = jnp.isfinite(xu) & ~fixed
+    hsl = jnp.isfinite(gl) & ~eq
+    hsu = jnp.isfinite(gu) & ~eq
+    rf = ctx.o.bound_relax_factor
+    xl, xu = relax(xl, hxl, -1.0, rf), relax(xu, hxu, 1.0, rf)
+    gl, gu = relax(gl, hsl, -1.0, rf), relax(gu, hsu, 1.0, rf)
+    free = ~eq & ~hsl & ~hsu
+    x0 = jnp.where(fixed, xl, x0)
+    sf, sg = scaling(ctx, x0, fixed, p)
+    return Prob(p, xl, xu, gl * sg, gu * sg, hxl, hxu, fixed, eq, hsl, hsu, free, sf, sg), x0
+
+
+def push(x, lo, hi, hlo, hhi, push_, frac):
+    """Project x strictly inside [lo, hi] (Sec. 3.6, bound_push / bound_frac)."""
+    width = jnp.where(hlo & hhi, hi - lo, jnp.inf)
+    pl = jnp.minimum(push_ * jnp.maximum(1.0, jnp.abs(lo)), frac * width)
+    pu = jnp.minimum(push_ * jnp.maximum(1.0, jnp.abs(hi)), frac * width)
+    x = jnp.where(hlo, jnp.maximum(x, lo + pl), x)
+    x = jnp.where(hhi, jnp.minimum(x, hi - pu), x)
+    return x
+
+
+def unscale(S: State, P: Prob):
+    """(x, lam_g, z_l, z_u, f) in the user's units from a final state."""
+    it = S.it
+    lam = it.y * P.sg / P.sf
+    return it.x, lam, it.zl / P.sf, it.zu / P.sf, S.ev.f / P.sf
+
+
+def solution(ctx: Context, S: State, P: Prob) -> Solution:
+    """The final state in the user's units (``unscale``) with the unscaled evaluations."""
+    x, lam, zl, zu, f = unscale(S, P)
+    return Solution(x=x, lam=lam, zl=zl, zu=zu, f=f, g=S.ev.g / P.sg, grad=S.ev.grad / P.sf,
+                    jac=S.ev.jac / P.sg[ctx.jr], status=S.status, k=S.k, hist=S.hist,
+                    resto_iters=S.resto_iters, fixed=P.fixed)
