@@ -28,8 +28,15 @@ def pytree_dataclass(cls: type[T]) -> type[T]:
     """Make ``cls`` a frozen dataclass and register it with JAX (fields: children or static)."""
     cls = dataclasses.dataclass(frozen=True)(cls)
     fields = dataclasses.fields(cls)  # type: ignore[arg-type]  # cls is a dataclass now
-    leaves = tuple(f.name for f in fields if not f.metadata.get("static"))
-    static = tuple(f.name for f in fields if f.metadata.get("static"))
+    return register(cls, static=tuple(f.name for f in fields if f.metadata.get("static")))
+
+
+def register(cls: type[T], static: tuple[str, ...] = ()) -> type[T]:
+    """Register the frozen dataclass ``cls`` with JAX: the fields named in ``static`` go to the
+    tree structure, every other field is a child; unflattening bypasses ``__init__``."""
+    fields = dataclasses.fields(cls)  # type: ignore[arg-type]
+    leaves = tuple(f.name for f in fields if f.name not in static)
+    static = tuple(f.name for f in fields if f.name in static)
 
     def flatten(obj):
         return tuple(getattr(obj, n) for n in leaves), tuple(getattr(obj, n) for n in static)

@@ -21,31 +21,7 @@ import numpy as np
 from jaxhumanoid.ocp.nlp import NLP, Bounds
 from jaxhumanoid.solvers import ipopt_capi
 from jaxhumanoid.solvers.result import NLPResult, constraint_violation
-
-# IPOPT's ApplicationReturnStatus codes.
-STATUS = {
-    0: "Solve_Succeeded",
-    1: "Solved_To_Acceptable_Level",
-    2: "Infeasible_Problem_Detected",
-    3: "Search_Direction_Becomes_Too_Small",
-    4: "Diverging_Iterates",
-    5: "User_Requested_Stop",
-    6: "Feasible_Point_Found",
-    -1: "Maximum_Iterations_Exceeded",
-    -2: "Restoration_Failed",
-    -3: "Error_In_Step_Computation",
-    -4: "Maximum_CpuTime_Exceeded",
-    -5: "Maximum_WallTime_Exceeded",
-    -10: "Not_Enough_Degrees_Of_Freedom",
-    -11: "Invalid_Problem_Definition",
-    -12: "Invalid_Option",
-    -13: "Invalid_Number_Detected",
-    -100: "Unrecoverable_Exception",
-    -101: "NonIpopt_Exception_Thrown",
-    -102: "Insufficient_Memory",
-    -199: "Internal_Error",
-}
-SUCCESS = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
+from jaxhumanoid.solvers.status import status_name, succeeded
 
 DEFAULT_OPTIONS = {
     "tol": 1e-8,
@@ -168,14 +144,14 @@ def solve_ipopt(
         solve_time = time.perf_counter() - t0
     if verbose:
         print(log["text"])
-    status = STATUS.get(code, f"Unknown_Status_{code}")
+    status = status_name(code)
     return NLPResult(
         x=x,
         lam_g=lam_g,
         z_l=z_l,
         z_u=z_u,
         status=status,
-        success=status in SUCCESS,
+        success=succeeded(status),
         iterations=max(len(cb.history["objective"]) - 1, 0),
         solve_time_s=solve_time,
         compile_time_s=compile_time,

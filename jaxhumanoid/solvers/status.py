@@ -51,6 +51,11 @@ class Status(enum.IntEnum):
 SUCCESS = frozenset({Status.Solve_Succeeded, Status.Solved_To_Acceptable_Level})
 
 
+def succeeded(name: str) -> bool:
+    """Whether a status name (``NLPResult.status``) is one of ``SUCCESS``."""
+    return name in {s.name for s in SUCCESS}
+
+
 def status_name(code: int) -> str:
     """The name of IPOPT's return code ``code``, ``"Unknown_Status_<code>"`` for any other value."""
     try:

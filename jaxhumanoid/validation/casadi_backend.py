@@ -30,8 +30,9 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from jaxhumanoid.solvers.ipopt import DEFAULT_OPTIONS, SUCCESS, captured_log
+from jaxhumanoid.solvers.ipopt import DEFAULT_OPTIONS, captured_log
 from jaxhumanoid.solvers.result import NLPResult, constraint_violation
+from jaxhumanoid.solvers.status import succeeded
 
 N_Q = 5
 
@@ -312,7 +313,7 @@ def solve_casadi(problem, x0=None, options: dict | None = None, verbose: bool = 
         z_l=np.maximum(-lam_x, 0.0),
         z_u=np.maximum(lam_x, 0.0),
         status=status,
-        success=status in SUCCESS,
+        success=succeeded(status),
         iterations=int(stats.get("iter_count", 0)),
         solve_time_s=float(stats.get("t_wall_total", solve_time)),
         compile_time_s=build_time,

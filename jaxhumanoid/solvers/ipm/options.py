@@ -20,6 +20,8 @@ from typing import Any
 import jax
 import numpy as np
 
+from jaxhumanoid.pytree import register
+
 
 @dataclasses.dataclass(frozen=True)
 class IPMOptions:
@@ -192,7 +194,7 @@ def make_options(options: IPMOptions | dict | None) -> IPMOptions:
 
 FLOAT_FIELDS = tuple(f.name for f in dataclasses.fields(IPMOptions) if f.type in ("float", float))
 STATIC_FIELDS = tuple(f.name for f in dataclasses.fields(IPMOptions) if f.name not in FLOAT_FIELDS)
-jax.tree_util.register_dataclass(IPMOptions, data_fields=list(FLOAT_FIELDS), meta_fields=list(STATIC_FIELDS))
+register(IPMOptions, static=STATIC_FIELDS)
 
 
 def as_float64(o: IPMOptions) -> IPMOptions:
