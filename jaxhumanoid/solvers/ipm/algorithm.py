@@ -151,7 +151,7 @@ def next_watchdog(o: IPMOptions, S: State, ls: LineSearch, start_resto) -> Watch
     shortened = ls.accepted & ~ls.in_wd & ~resto & (ls.a_pr < ls.amax)
     start_wd = ls.start_wd
     return Watchdog(
-        count=jnp.where(shortened, W.count + 1, 0).astype(jnp.int32),
+        shortened=jnp.where(shortened, W.shortened + 1, 0).astype(jnp.int32),
         on=ls.wd_tentative & ~start_resto,
         trials=jnp.where(ls.wd_tentative, W.trials + 1, 0).astype(jnp.int32),
         it=tree_where(start_wd, S.it, W.it),

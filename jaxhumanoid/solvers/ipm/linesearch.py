@@ -156,8 +156,8 @@ def tiny_step(it: Iterate, d: Direction, ok_step, resto):
 def watchdog_start(o: IPMOptions, W: Watchdog, nupd, resto):
     """The watchdog after a barrier update (which ends it and its count) and whether it starts:
     after ``watchdog_shortened_iter_trigger`` shortened steps, outside the restoration phase."""
-    W = W._replace(count=jnp.where(nupd > 0, 0, W.count), on=W.on & (nupd == 0))
-    start = ((~W.on) & (~resto) & (W.count >= o.watchdog_shortened_iter_trigger)
+    W = W._replace(shortened=jnp.where(nupd > 0, 0, W.shortened), on=W.on & (nupd == 0))
+    start = ((~W.on) & (~resto) & (W.shortened >= o.watchdog_shortened_iter_trigger)
              & (o.watchdog_shortened_iter_trigger > 0) & (~W.skip_first))
     return W, start
 

@@ -113,7 +113,7 @@ class Watchdog(NamedTuple):
     consecutive shortened steps, full steps are taken tentatively (up to
     ``watchdog_trial_iter_max``) and judged against the point where the watchdog started; if
     none is acceptable, the iterate goes back there and backtracks from half the step."""
-    count: jax.Array        # consecutive shortened steps
+    shortened: jax.Array    # consecutive shortened steps
     on: jax.Array
     trials: jax.Array
     it: Iterate

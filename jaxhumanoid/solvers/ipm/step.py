@@ -24,8 +24,9 @@ from jaxhumanoid.solvers.ipm.state import Evals, Iterate, Prob
 
 
 def refinement(o: IPMOptions):
-    """Iterative refinement settings of ``kkt.solve``."""
-    return o.min_refinement_steps, o.max_refinement_steps, o.residual_ratio_max
+    """Iterative refinement settings of ``kkt.solve`` (keyword arguments)."""
+    return dict(min_steps=o.min_refinement_steps, max_steps=o.max_refinement_steps,
+                residual_ratio_max=o.residual_ratio_max)
 
 
 def sigmas(P: Prob, it: Iterate):
@@ -63,7 +64,8 @@ def factorize(ctx: Context, P: Prob, rr, base, sigs, dw, dc):
     """Factor K = ``base`` plus the diagonal of the regularisation (dw, dc).
 
     Returns (A, B, factor, the eliminated rows' inverse pivots)."""
-    invs, diag_x, diag_c = kkt_parts(P, rr, *sigs, dw, dc)
+    sig_x, sig_s, sig_p, sig_n = sigs
+    invs, diag_x, diag_c = kkt_parts(P, rr, sig_x, sig_s, sig_p, sig_n, dw, dc)
     A, B = kkt.add_diagonal(ctx.st, base[0], diag_x, diag_c), base[1]
     return A, B, kkt.factor(ctx.st, A, B, early_exit=True), invs
 
@@ -78,7 +80,7 @@ def solve_reduced(ctx: Context, P: Prob, A, B, fac, invs, rx, rs, rp, rn, c):
     inv_s, inv_p, inv_n = invs
     bx = jnp.where(P.fixed, 0.0, -rx)
     bc = jnp.where(P.free, 0.0, -c - inv_s * rs - inv_p * rp + inv_n * rn)
-    dx, dy, res = kkt.solve(ctx.st, fac, A, B, bx, bc, *refinement(ctx.o), with_residual=True)
+    dx, dy, res = kkt.solve(ctx.st, fac, A, B, bx, bc, **refinement(ctx.o), with_residual=True)
     # the residual ratio of the reduced system, from the refinement's last residual
     nsol = jnp.maximum(jnp.max(jnp.abs(dx), initial=0.0), jnp.max(jnp.abs(dy), initial=0.0))
     nrhs = jnp.maximum(jnp.max(jnp.abs(bx), initial=0.0), jnp.max(jnp.abs(bc), initial=0.0))
@@ -141,7 +143,7 @@ def ls_multipliers(ctx: Context, P: Prob, it: Iterate, ev: Evals):
     fac = kkt.factor(ctx.st, A, B, fast=False)
     a = jnp.where(P.fixed, 0.0, ev.grad - it.zl + it.zu)
     b = jnp.where(ineq_b, -it.vl + it.vu, 0.0)
-    _, y = kkt.solve(ctx.st, fac, A, B, -a, -b, *refinement(ctx.o))
+    _, y = kkt.solve(ctx.st, fac, A, B, -a, -b, **refinement(ctx.o))
     good = (kkt.inertia_ok(ctx.st, fac) & jnp.all(jnp.isfinite(y))
             & (jnp.max(jnp.abs(y), initial=0.0) <= ctx.o.constr_mult_init_max))
     return jnp.where(good & ~P.free, y, 0.0)
