@@ -34,8 +34,10 @@ from jaxhumanoid.diff.fd import (
 from jaxhumanoid.diff.inverse import FREE_WEIGHTS, WEIGHT_NAMES, WeightFit, perturbed_weights, trajectory_scale
 from jaxhumanoid.diff.kkt import (
     KKTSensitivity,
+    KKTValues,
     bounds_for_goal,
     goal_bound_jacobians,
+    kkt_values,
     objective_gradient,
     solution_jvp,
     solution_vjp,
@@ -45,9 +47,9 @@ from jaxhumanoid.diff.trees import rel_err, tree_vdot, zeros_like_params
 
 __all__ = [
     "FD_TOL", "FREE_WEIGHTS", "GROUPS", "WEIGHT_NAMES",
-    "ActiveSet", "KKTPoint", "KKTSensitivity", "StrictComplementarityWarning", "WeightFit",
+    "ActiveSet", "KKTPoint", "KKTSensitivity", "KKTValues", "StrictComplementarityWarning", "WeightFit",
     "bounds_for_goal", "check_against_fd", "continuation_solve", "dependent_active_rows", "fd_directional",
-    "goal_bound_jacobians", "identify_active_set", "implied_bounds", "make_solve", "missed_active_set",
+    "goal_bound_jacobians", "identify_active_set", "implied_bounds", "kkt_values", "make_solve", "missed_active_set",
     "mutation_errors", "objective_gradient", "param_direction", "perturb", "perturbed_weights", "reference_solve",
     "rel_err", "resolve", "resolve_robust", "sensitivity_table", "solution_jvp", "solution_vjp", "table_rows",
     "trajectory_scale", "tree_vdot", "warm_start", "zeros_like_params",

@@ -10,7 +10,10 @@ is the adjoint of the reduced KKT system at the solution (``KKTSensitivity.adjoi
 
 Both callbacks are pure: their results depend only on their arguments. The warm start is an
 argument, ``solve(p, warm)``, and every solve returns the KKT point it found, which the caller
-may pass as the next warm start; nothing is kept between calls.
+may pass as the next warm start; nothing is kept between calls. The adjoint's callback makes no
+JAX call (the NLP's values are evaluated before it, ``kkt_values``): a JAX dispatch from inside
+a callback can deadlock JAX's CPU client with asynchronous dispatch. IPOPT's forward callback
+cannot avoid one (IPOPT evaluates the NLP's jitted functions).
 """
 
 from __future__ import annotations
@@ -22,7 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxhumanoid.diff.kkt import KKTSensitivity
+from jaxhumanoid.diff.kkt import KKTSensitivity, kkt_values
 from jaxhumanoid.diff.lagrangian import lagrangian_fns
 from jaxhumanoid.diff.resolve import continuation_solve, resolve_robust
 from jaxhumanoid.diff.trees import as_float_tree
@@ -137,8 +140,8 @@ def make_solve(problem, solver: str = "ipopt", options: dict | None = None, sc_t
             x0 = jnp.asarray(bounds.x0, f64) if warm is None else jnp.clip(warm[0], xl, xu)
             return core(x0, xl, xu, gl, gu, p, fopts)
 
-    def host_adjoint(x, lam, zl, zu, p, ct):
-        kkt = KKTSensitivity(problem, x=x, lam_g=lam, z_l=zl, z_u=zu, p=p, sc_tol=sc_tol)
+    def host_adjoint(x, lam, zl, zu, p, values, ct):
+        kkt = KKTSensitivity(problem, x=x, lam_g=lam, z_l=zl, z_u=zu, p=p, sc_tol=sc_tol, values=values)
         return kkt.adjoint(ct)
 
     pullback = lagrangian_fns(nlp).pullback
@@ -153,7 +156,9 @@ def make_solve(problem, solver: str = "ipopt", options: dict | None = None, sc_t
 
     def bwd(saved, cts):
         (x, lam, zl, zu), p, warm = saved
-        v_x, v_lam = jax.pure_callback(host_adjoint, (vec(n), vec(m)), x, lam, zl, zu, p, cts[0],
+        # the NLP's values are evaluated here, so that the callback itself makes no JAX call
+        values = kkt_values(nlp, x, lam, p)
+        v_x, v_lam = jax.pure_callback(host_adjoint, (vec(n), vec(m)), x, lam, zl, zu, p, values, cts[0],
                                        vmap_method="sequential")
         dp = jax.tree.map(lambda a: -a, pullback(x, lam, p, v_x, v_lam))
         return dp, jax.tree.map(jnp.zeros_like, warm)

@@ -30,6 +30,7 @@ factorisation regularises and counts inertia for the IPM's line search.
 from __future__ import annotations
 
 import time
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -73,10 +74,29 @@ def bounds_for_goal(problem, goal) -> Bounds:
     return Bounds(x0=np.clip(b.x0, lo[free], hi[free]), xl=lo[free], xu=hi[free], gl=b.gl, gu=b.gu)
 
 
-def _sparse_derivatives(nlp, fns, x, lam, p):
-    """(J (m, n) CSR, H (n, n) symmetric CSR) at (x, lam, p), H with sigma = 1."""
-    J = sp.csr_matrix((np.asarray(fns.jac(x, p)), (nlp.jac_rows, nlp.jac_cols)), shape=(nlp.m, nlp.n))
-    Hl = sp.csr_matrix((np.asarray(fns.hess(x, lam, 1.0, p)), (nlp.hess_rows, nlp.hess_cols)), shape=(nlp.n, nlp.n))
+class KKTValues(NamedTuple):
+    """The NLP's values that the reduced KKT system is built from, at (x, lam, p).
+
+    g: (m,) constraints; jac: (nnz_jac,) Jacobian values; hess: (nnz_hess,) Hessian values of the
+    Lagrangian (sigma = 1); grad_lag: (n,) grad_x (f + lam . g).
+    """
+
+    g: Any
+    jac: Any
+    hess: Any
+    grad_lag: Any
+
+
+def kkt_values(nlp, x, lam, p) -> KKTValues:
+    """``KKTValues`` by the NLP's jitted functions (traceable: usable inside a JAX transformation)."""
+    fns = lagrangian_fns(nlp)
+    return KKTValues(g=fns.g(x, p), jac=fns.jac(x, p), hess=fns.hess(x, lam, 1.0, p), grad_lag=fns.grad_lag(x, lam, p))
+
+
+def _sparse_derivatives(nlp, vals: KKTValues):
+    """(J (m, n) CSR, H (n, n) symmetric CSR) from the values, H with sigma = 1."""
+    J = sp.csr_matrix((np.asarray(vals.jac), (nlp.jac_rows, nlp.jac_cols)), shape=(nlp.m, nlp.n))
+    Hl = sp.csr_matrix((np.asarray(vals.hess), (nlp.hess_rows, nlp.hess_cols)), shape=(nlp.n, nlp.n))
     return J, (Hl + Hl.T - sp.diags(Hl.diagonal())).tocsr()
 
 
@@ -99,26 +119,32 @@ class KKTSensitivity:
 
     ``KKTSensitivity(problem, result)`` or with explicit ``x, lam_g, z_l, z_u, p, bounds``
     (overriding the fields of ``result``). ``active``: use this active set instead of
-    identifying it; ``dep_tol``: pivot tolerance of ``dependent_active_rows``.
+    identifying it; ``dep_tol``: pivot tolerance of ``dependent_active_rows``. ``values``: the
+    ``KKTValues`` at the point, evaluated beforehand; the construction then makes no JAX call
+    (as inside a host callback, where a nested JAX dispatch can deadlock the CPU client) and
+    keeps p with numpy leaves.
     """
 
     def __init__(self, problem, result=None, *, x=None, lam_g=None, z_l=None, z_u=None, p=None, bounds=None,
-                 sc_tol: float = 1e-6, warn: bool = True, active: ActiveSet | None = None, dep_tol: float = 1e-9):
+                 sc_tol: float = 1e-6, warn: bool = True, active: ActiveSet | None = None, dep_tol: float = 1e-9,
+                 values: KKTValues | None = None):
         t0 = time.perf_counter()
         self.problem = problem
         nlp = self.nlp = problem.nlp
-        self.p = as_float_tree(problem.p if p is None else p)
+        p = problem.p if p is None else p
+        self.p = as_float_tree(p) if values is None else jax.tree.map(lambda a: np.asarray(a, dtype=float), p)
         self.bounds = problem.bounds if bounds is None else bounds
         self.x = np.asarray(result.x if x is None else x, dtype=float)
         self.lam = np.asarray(result.lam_g if lam_g is None else lam_g, dtype=float)
         self.z_l = np.asarray(result.z_l if z_l is None else z_l, dtype=float)
         self.z_u = np.asarray(result.z_u if z_u is None else z_u, dtype=float)
-        fns = self.fns = lagrangian_fns(nlp)
-        self.g_val = np.asarray(fns.g(self.x, self.p))
+        self.fns = lagrangian_fns(nlp)
+        vals = kkt_values(nlp, self.x, self.lam, self.p) if values is None else values
+        self.g_val = np.asarray(vals.g)
         self.active = active if active is not None else identify_active_set(
             self.bounds, self.x, self.g_val, self.lam, self.z_l, self.z_u, sc_tol=sc_tol, warn=warn,
             ignore_bounds=implied_bounds(problem))
-        J, H = self.J, self.H = _sparse_derivatives(nlp, fns, self.x, self.lam, self.p)
+        J, H = self.J, self.H = _sparse_derivatives(nlp, vals)
         self.F = np.flatnonzero(self.active.free)
         self.B = np.flatnonzero(self.active.fixed)
         self.dropped = dependent_active_rows(J, self.F, self.active, dep_tol)
@@ -132,7 +158,7 @@ class KKTSensitivity:
         self.lu = _factor(self.K, self.F.size, self.C.size)
         self.factor_time_s = time.perf_counter() - t0
         # stationarity residual of the KKT point: a check of the multiplier convention
-        gl = np.asarray(fns.grad_lag(self.x, self.lam, self.p))
+        gl = np.asarray(vals.grad_lag)
         self.dropped_residual = 0.0
         self.stationarity = float(np.max(np.abs(gl - self.z_l + self.z_u))) if nlp.n else 0.0
 
