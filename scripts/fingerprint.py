@@ -61,9 +61,9 @@ def testproblem_records() -> dict:
 
 
 def sensitivity_records(tasks=("T1", "T3")) -> dict:
-    from jaxhumanoid import sensitivity
+    from jaxhumanoid.diff import sensitivity_table
 
-    rows, _ = sensitivity.sensitivity_table(tasks, "A,F+C,1S", N=15)
+    rows, _ = sensitivity_table(tasks, "A,F+C,1S", N=15)
     return {f"{r['case']} {r['quantity']}": r["value"] for r in rows}
 
 

@@ -155,10 +155,10 @@ def cmd_animate(args) -> int:
 def cmd_check(args) -> int:
     tasks = [args.task] if args.task else ["T1", "T2", "T3", "T4"]
     if args.sensitivities:
-        from jaxhumanoid import sensitivity
+        from jaxhumanoid.diff import sensitivity_table
 
         scheme = f"{args.scheme or 'A,F+C'},1S"
-        rows, outs = sensitivity.sensitivity_table(tasks, scheme, N=args.N or 15, eps=args.eps)
+        rows, outs = sensitivity_table(tasks, scheme, N=args.N or 15, eps=args.eps)
         results = {"rows": rows, "results": outs}
     else:
         schemes = [args.scheme] if args.scheme else ["E,F", "A,F", "A,F+C"]

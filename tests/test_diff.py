@@ -1,6 +1,6 @@
-"""Sensitivities of optimal solutions (issue 7): implicit differentiation of the KKT conditions
-checked against central differences of warm-started IPOPT re-solves, and inverse optimal control
-of the cost weights.
+"""Sensitivities of optimal solutions (jaxhumanoid.diff): implicit differentiation of the KKT
+conditions checked against central differences of warm-started IPOPT re-solves, ``make_solve``
+with IPOPT and with the IPM, and inverse optimal control of the cost weights.
 
 Each task (A,F+C,1S, N = 15, dynamic model) is solved once per module (tol 1e-10) and reused.
 Agreement is measured in the 2-norm over all NLP variables, ||dx_ift - dx_fd||_2 / ||dx_fd||_2,
@@ -20,7 +20,8 @@ import pytest
 
 pytest.importorskip("cyipopt")
 
-from jaxhumanoid import sensitivity as S  # noqa: E402
+from jaxhumanoid import diff as S  # noqa: E402
+from jaxhumanoid.outputs import cli  # noqa: E402
 from jaxhumanoid.runtime import enable_compilation_cache  # noqa: E402
 from jaxhumanoid.strategy.problem import build_problem  # noqa: E402
 
@@ -119,23 +120,75 @@ def test_weakly_active_pair_warns(case):
 
 def test_jax_grad_through_solve(case):
     prob, res, kkt = case
-    solve = S.make_solve(prob, result=res, options={"tol": 1e-10})
+    solve = S.make_solve(prob, options={"tol": 1e-10})
+    warm = S.warm_start(res, prob.p)
     ct = np.random.default_rng(7).normal(size=prob.nlp.n)
     ref = kkt.vjp(ct)
 
     def loss_w(w):
-        return jnp.dot(ct, solve(dataclasses.replace(prob.p, weights=w)))
+        return jnp.dot(ct, solve(dataclasses.replace(prob.p, weights=w), warm)[0])
 
     def loss_c(kappa, f0, xhat, mu):
         c = jax.tree.unflatten(jax.tree.structure(prob.p.contact), [kappa, f0, xhat, mu])
-        return jnp.dot(ct, solve(dataclasses.replace(prob.p, contact=c)))
+        return jnp.dot(ct, solve(dataclasses.replace(prob.p, contact=c), warm)[0])
 
     gw = jax.grad(loss_w)(jnp.asarray(prob.p.weights))
     assert S.rel_err(gw, ref.weights) < 1e-8
     leaves = [jnp.asarray(v, dtype=jnp.float64) for v in jax.tree.leaves(prob.p.contact)]
     gc = jax.grad(loss_c, argnums=(0, 1, 2, 3))(*leaves)
     assert S.rel_err(np.array(gc), np.array([np.asarray(v) for v in jax.tree.leaves(ref.contact)])) < 1e-8
-    assert solve.stats["solves"] == 2 and solve.stats["adjoints"] == 2
+
+
+def test_solve_depends_only_on_its_inputs(case):
+    """The same (p, warm) gives the same x*, multipliers and gradient whatever was solved before."""
+    prob, res, _ = case
+    solve = S.make_solve(prob, options={"tol": 1e-10})
+    warm = S.warm_start(res, prob.p)
+    ct = jnp.asarray(np.random.default_rng(8).normal(size=prob.nlp.n))
+    w0 = jnp.asarray(prob.p.weights)
+
+    def loss(w):
+        x, point = solve(dataclasses.replace(prob.p, weights=w), warm)
+        return jnp.dot(ct, x), point
+
+    grad = jax.value_and_grad(loss, has_aux=True)
+    (_, first), g_first = grad(w0 * 1.1)
+    _, point = solve(prob.p, warm)  # another solve in between, and its result as a warm start
+    solve(dataclasses.replace(prob.p, weights=w0 * 0.9), point)
+    (_, again), g_again = grad(w0 * 1.1)
+    assert bool(first.success) and int(first.iterations) == int(again.iterations)
+    for a, b in zip(first[:4], again[:4]):
+        assert np.array_equal(np.asarray(a), np.asarray(b))
+    assert np.array_equal(np.asarray(g_first), np.asarray(g_again))
+
+
+def test_grad_through_ipm_matches_ipopt_and_fd():
+    """jax.grad through the jitted IPM (no callback in the forward pass) agrees with the IPOPT
+    path and with central differences of IPOPT re-solves (T3, N = 10: from IPOPT's solution the
+    IPM converges in a few iterations; at N = 15 its primal warm start fails)."""
+    prob = build_problem("T3", "A,F+C,1S", N=10, T=5.0)
+    res = S.reference_solve(prob, tol=1e-10)
+    ct = jnp.asarray(np.random.default_rng(9).normal(size=prob.nlp.n))
+    dw = S.param_direction(prob.p, "weights", seed=3).weights
+    w0 = jnp.asarray(prob.p.weights)
+
+    def loss_of(solve, warm):
+        def loss(w):
+            x, point = solve(dataclasses.replace(prob.p, weights=w), warm)
+            return jnp.dot(ct, x), point
+        return loss
+
+    ipm = S.make_solve(prob, solver="ipm", options={"tol": 1e-10})
+    (_, point), g_ipm = jax.value_and_grad(loss_of(ipm, S.warm_start(res, prob.p)), has_aux=True)(w0)
+    assert bool(point.success) and S.rel_err(point.x, res.x) < 1e-6  # the same local optimum as IPOPT
+    ipopt = S.make_solve(prob, options={"tol": 1e-10})
+    (_, _), g_ipopt = jax.value_and_grad(loss_of(ipopt, S.warm_start(res, prob.p)), has_aux=True)(w0)
+    assert S.rel_err(g_ipm, g_ipopt) < 1e-6
+    dx_fd, _, _ = S.fd_directional(prob, res, dataclasses.replace(S.zeros_like_params(prob.p), weights=dw))
+    fd = float(np.asarray(ct) @ dx_fd)
+    assert abs(float(np.asarray(g_ipm) @ dw) - fd) < 1e-4 * abs(fd)
+    with pytest.raises(ValueError, match="solver"):
+        S.make_solve(prob, solver="casadi")
 
 
 
@@ -182,8 +235,6 @@ def test_weight_fit_rejects_bad_input(case):
 
 @pytest.mark.slow
 def test_cli_check_sensitivities(capsys):
-    from jaxhumanoid.outputs import cli
-
     assert cli.main(["check", "--sensitivities", "--task", "T3"]) == 0
     text = capsys.readouterr().out
     assert "dx* weights" in text and "12 passed, 0 failed" in text
