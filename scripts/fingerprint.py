@@ -22,6 +22,7 @@ import numpy as np
 from bench_ipm import stage1_problem
 
 import jaxhumanoid  # noqa: F401  (x64)
+from jaxhumanoid.diff import sensitivity_table
 from jaxhumanoid.ocp import transcription as tr
 from jaxhumanoid.solvers.ipm import solve_ipm
 from jaxhumanoid.solvers.ipopt import solve_ipopt
@@ -61,8 +62,6 @@ def testproblem_records() -> dict:
 
 
 def sensitivity_records(tasks=("T1", "T3")) -> dict:
-    from jaxhumanoid.diff import sensitivity_table
-
     rows, _ = sensitivity_table(tasks, "A,F+C,1S", N=15)
     return {f"{r['case']} {r['quantity']}": r["value"] for r in rows}
 

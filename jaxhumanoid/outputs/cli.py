@@ -9,6 +9,7 @@ import sys
 import tempfile
 import time
 
+from jaxhumanoid.diff import sensitivity_table
 from jaxhumanoid.ocp.scheme import TABLE2_SCHEMES
 from jaxhumanoid.outputs import plots, timeline
 from jaxhumanoid.outputs.animation import animate
@@ -155,8 +156,6 @@ def cmd_animate(args) -> int:
 def cmd_check(args) -> int:
     tasks = [args.task] if args.task else ["T1", "T2", "T3", "T4"]
     if args.sensitivities:
-        from jaxhumanoid.diff import sensitivity_table
-
         scheme = f"{args.scheme or 'A,F+C'},1S"
         rows, outs = sensitivity_table(tasks, scheme, N=args.N or 15, eps=args.eps)
         results = {"rows": rows, "results": outs}
