@@ -29,9 +29,9 @@ from jaxhumanoid.diff.kkt import KKTSensitivity, kkt_values
 from jaxhumanoid.diff.lagrangian import lagrangian_fns
 from jaxhumanoid.diff.resolve import continuation_solve, resolve_robust
 from jaxhumanoid.diff.trees import as_float_tree
-from jaxhumanoid.solvers.ipm import make_ipm, unscale
-from jaxhumanoid.solvers.ipm.algorithm import SUCCESS_CODES
-from jaxhumanoid.solvers.ipm.options import float_vector, make_options, static_part
+from jaxhumanoid.solvers.ipm.algorithm import solve as ipm_solve
+from jaxhumanoid.solvers.ipm.options import as_float64, make_options
+from jaxhumanoid.solvers.status import SUCCESS
 
 SOLVERS = ("ipopt", "ipm")
 
@@ -61,20 +61,17 @@ def warm_start(result, p) -> KKTPoint:
 
 
 def _ipm_core(nlp, options):
-    """jit of the IPM core returning (x, lam_g, z_l, z_u, iterations, success), kept in nlp.cache
-    per static options, and the float options vector it takes."""
-    opts = make_options(options)
-    key = ("diff.ipm_forward", static_part(opts))
-    if key not in nlp.cache:
-        run = make_ipm(nlp, static_part(opts))
+    """jit of the IPM core returning (x, lam_g, z_l, z_u, iterations, success), kept in nlp.cache,
+    and the options pytree it takes (float leaves traced; the static ones select the program)."""
+    if "diff.ipm_forward" not in nlp.cache:
+        codes = jnp.asarray(sorted(int(s) for s in SUCCESS), jnp.int32)
 
-        def fn(x0, xl, xu, gl, gu, p, fopts):
-            S, P = run(x0, xl, xu, gl, gu, p, fopts)
-            x, lam, zl, zu, _ = unscale(S, P)
-            return x, lam, zl, zu, S.k.astype(jnp.int64), jnp.isin(S.status, jnp.asarray(SUCCESS_CODES))
+        def fn(x0, xl, xu, gl, gu, p, o):
+            sol = ipm_solve(nlp, o, x0, xl, xu, gl, gu, p)
+            return sol.x, sol.lam, sol.zl, sol.zu, sol.k.astype(jnp.int64), jnp.isin(sol.status, codes)
 
-        nlp.cache[key] = jax.jit(fn)
-    return nlp.cache[key], jnp.asarray(float_vector(opts))
+        nlp.cache["diff.ipm_forward"] = jax.jit(fn)
+    return nlp.cache["diff.ipm_forward"], as_float64(make_options(options))
 
 
 def _ipopt_forward(problem, options, strict: bool, max_rel_step):
@@ -166,7 +163,7 @@ def make_solve(problem, solver: str = "ipopt", options: dict | None = None, sc_t
     _solve.defvjp(fwd, bwd)
 
     def solve(p, warm: KKTPoint | None = None):
-        if jax.tree.structure(p) != p_struct:
+        if jax.tree.structure(p) != p_struct:  # type: ignore[operator]  # PyTreeDef compares
             raise ValueError("solve: p must have the structure of problem.p (an OCPParams)")
         p = as_float_tree(p)
         w = None if warm is None else as_float_tree((warm.x, warm.lam_g, warm.z_l, warm.z_u, warm.p))

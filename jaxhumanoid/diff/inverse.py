@@ -7,6 +7,8 @@ continued along the data's branch of local optima (``continuation_solve``).
 
 from __future__ import annotations
 
+from typing import Any
+
 import dataclasses
 import time
 
@@ -85,7 +87,7 @@ class WeightFit:
         self.options = {"tol": 1e-10, "max_iter": 3000, **(options or {})}
         self.max_rel_step = max_rel_step
         self.verbose = verbose
-        self.stats = {"solves": 0, "solve_wall_s": 0.0, "sensitivities": 0, "sensitivity_wall_s": 0.0}
+        self.stats: dict[str, Any] = {"solves": 0, "solve_wall_s": 0.0, "sensitivities": 0, "sensitivity_wall_s": 0.0}
         self.history: list[dict] = []
         self._last = None  # (theta, p, result) of the latest solve
         self._best = None  # (loss, theta, p, result) of the solve with the smallest loss: the anchor

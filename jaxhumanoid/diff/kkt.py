@@ -171,7 +171,7 @@ class KKTSensitivity:
     def kkt_residual(self, rhs, sol) -> float:
         """Relative residual of a reduced-KKT solve (conditioning check)."""
         r = self.K @ sol - rhs
-        return float(np.linalg.norm(r) / max(np.linalg.norm(rhs), 1e-300))
+        return float(np.linalg.norm(r) / max(float(np.linalg.norm(rhs)), 1e-300))
 
     # -- forward ------------------------------------------------------------------------------
 

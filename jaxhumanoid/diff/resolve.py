@@ -24,7 +24,7 @@ WARM_OPTIONS = {
     "mu_init": 1e-9,
 }
 
-REFERENCE_FALLBACKS = (
+REFERENCE_FALLBACKS: tuple[dict, ...] = (
     {},
     {"mu_strategy": "adaptive"},
     {"mu_init": 1e-2},
@@ -76,7 +76,7 @@ def reference_solve(problem, tol: float = 1e-10, max_iter: int = 3000, verbose: 
         if res.success:
             res.history = {**(res.history or {}), "attempt": k}
             return res
-    raise RuntimeError(f"reference_solve: every attempt failed (last: {res.status})")
+    raise RuntimeError(f"reference_solve: every attempt failed (last: {res.status if res else None})")
 
 
 def _interpolate(a, b, t: float):

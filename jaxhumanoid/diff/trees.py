@@ -25,4 +25,4 @@ def tree_vdot(a, b) -> float:
 def rel_err(a, b) -> float:
     """||a - b||_2 / max(||b||_2, tiny)."""
     a, b = np.asarray(a, float), np.asarray(b, float)
-    return float(np.linalg.norm(a - b) / max(np.linalg.norm(b), 1e-300))
+    return float(np.linalg.norm(a - b) / max(float(np.linalg.norm(b)), 1e-300))
