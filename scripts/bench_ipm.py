@@ -33,6 +33,7 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
+from _bench import write
 
 import jaxhumanoid  # noqa: F401
 from jaxhumanoid.model.params import ContactParams
@@ -43,8 +44,6 @@ from jaxhumanoid.solvers.ipm import batch_solve_ipm, solve_ipm
 from jaxhumanoid.solvers.ipopt import solve_ipopt
 from jaxhumanoid.strategy import solve as strat
 from jaxhumanoid.strategy.problem import build_problem
-
-from _bench import write
 
 SCHEME = "A,F+C,2S"
 
@@ -78,7 +77,7 @@ def per_iteration(runs: int, iters: int) -> dict:
     opts = {**strat.STAGE2_DEFAULTS, "max_iter": iters}
     out = {}
     for name, fn in (("ipm", solve_ipm), ("ipopt", solve_ipopt)):
-        if name == "ipopt":                 # jit the evaluators (the IPM reports compile apart)
+        if name == "ipopt":  # jit the evaluators (the IPM reports compile apart)
             fn(prob.nlp, prob.p, prob.bounds, x0=x0, options=opts)
         ms = []
         for _ in range(runs):
@@ -97,9 +96,14 @@ def stage2_same_start(task: str) -> dict:
     out = {}
     for name, fn in (("ipm", solve_ipm), ("ipopt", solve_ipopt)):
         r = fn(prob.nlp, prob.p, prob.bounds, x0=x0, options=strat.STAGE2_DEFAULTS)
-        out[name] = {"status": r.status, "iterations": int(r.iterations), "objective": float(r.objective),
-                     "solve_s": r.solve_time_s, "ms_per_iteration": r.solve_time_s / max(r.iterations, 1) * 1e3,
-                     "q": np.asarray(prob.full(r.x))[:, 0:5]}
+        out[name] = {
+            "status": r.status,
+            "iterations": int(r.iterations),
+            "objective": float(r.objective),
+            "solve_s": r.solve_time_s,
+            "ms_per_iteration": r.solve_time_s / max(r.iterations, 1) * 1e3,
+            "q": np.asarray(prob.full(r.x))[:, 0:5],
+        }
     a, b = out["ipm"], out["ipopt"]
     out["objective_rel_diff"] = rel_diff(a["objective"], b["objective"])
     out["max_abs_dq_rad"] = float(np.max(np.abs(a.pop("q") - b.pop("q"))))
@@ -119,14 +123,20 @@ def rounding_spread(task: str) -> dict:
     runs = []
     for extra in ROUNDING_VARIANTS:
         r = solve_ipopt(first.nlp, first.p, first.bounds, options={**strat.STAGE1_DEFAULTS, **extra})
-        runs.append({"options": extra, "status": r.status, "iterations": int(r.iterations), "objective": float(r.objective)})
+        runs.append(
+            {"options": extra, "status": r.status, "iterations": int(r.iterations), "objective": float(r.objective)}
+        )
     r = solve_ipm(first.nlp, first.p, first.bounds, options=strat.STAGE1_DEFAULTS)
     its = [v["iterations"] for v in runs]
     objs = sorted({round(v["objective"], 6) for v in runs})
-    return {"ipopt": runs, "ipopt_iterations_min": min(its), "ipopt_iterations_max": max(its),
-            "ipopt_distinct_optima": objs,
-            "ipm": {"status": r.status, "iterations": int(r.iterations), "objective": float(r.objective)},
-            "ipm_over_ipopt_max": int(r.iterations) / max(its)}
+    return {
+        "ipopt": runs,
+        "ipopt_iterations_min": min(its),
+        "ipopt_iterations_max": max(its),
+        "ipopt_distinct_optima": objs,
+        "ipm": {"status": r.status, "iterations": int(r.iterations), "objective": float(r.objective)},
+        "ipm_over_ipopt_max": int(r.iterations) / max(its),
+    }
 
 
 def whole_2s(task: str, runs: int) -> dict:
@@ -191,9 +201,11 @@ def batch_throughput(batch: int) -> dict:
     res_b = batch_solve_ipm(prob.nlp, p_batch, prob.bounds, options=opts)
     t_batch = time.perf_counter() - t0
     p_one = jax.tree.map(lambda a: a[0], p_batch)
-    solve_ipm(prob.nlp, p_one, prob.bounds, options=opts)                                                # compile
+    solve_ipm(prob.nlp, p_one, prob.bounds, options=opts)  # compile
     t0 = time.perf_counter()
-    res_s = [solve_ipm(prob.nlp, jax.tree.map(lambda a: a[i], p_batch), prob.bounds, options=opts) for i in range(batch)]
+    res_s = [
+        solve_ipm(prob.nlp, jax.tree.map(lambda a: a[i], p_batch), prob.bounds, options=opts) for i in range(batch)
+    ]
     t_seq = time.perf_counter() - t0
     return {
         "problem": f"T1 stage 1 (pseudo-static, N={strat.STAGE1_N}), weights x exp(0.2 N(0,1))",
@@ -225,41 +237,59 @@ def main():
 
     if not args.skip_per_iteration:
         results["per_iteration_N100"] = pi = per_iteration(args.runs, args.iters)
-        print(f"per iteration at N=100: IPM {pi['ipm']['ms_per_iteration_median']:.1f} ms, "
-              f"IPOPT {pi['ipopt']['ms_per_iteration_median']:.1f} ms, ratio {pi['ratio_ipm_over_ipopt']:.2f}")
+        print(
+            f"per iteration at N=100: IPM {pi['ipm']['ms_per_iteration_median']:.1f} ms, "
+            f"IPOPT {pi['ipopt']['ms_per_iteration_median']:.1f} ms, ratio {pi['ratio_ipm_over_ipopt']:.2f}"
+        )
 
     results["whole_2s"] = {}
-    print(f"{'task':5s} {'IPM status':>34s} {'its':>9s} {'s':>6s} | {'IPOPT its':>9s} {'s':>6s} | {'rel obj':>8s} {'max dq':>7s}")
+    print(
+        f"{'task':5s} {'IPM status':>34s} {'its':>9s} {'s':>6s} | {'IPOPT its':>9s} {'s':>6s} | {'rel obj':>8s} {'max dq':>7s}"
+    )
     for task in args.tasks:
         r = results["whole_2s"][task] = whole_2s(task, args.runs)
         a, b = r["ipm"], r["ipopt"]
-        print(f"{task:5s} {'+'.join(s[:16] for s in a['status']):>34s} {'+'.join(map(str, a['iterations'])):>9s} "
-              f"{a['solve_s_median']:6.2f} | {'+'.join(map(str, b['iterations'])):>9s} {b['solve_s_median']:6.2f} | "
-              f"{r['objective_rel_diff']:8.1e} {r['max_abs_dq_rad']:7.3f}")
+        print(
+            f"{task:5s} {'+'.join(s[:16] for s in a['status']):>34s} {'+'.join(map(str, a['iterations'])):>9s} "
+            f"{a['solve_s_median']:6.2f} | {'+'.join(map(str, b['iterations'])):>9s} {b['solve_s_median']:6.2f} | "
+            f"{r['objective_rel_diff']:8.1e} {r['max_abs_dq_rad']:7.3f}"
+        )
 
     results["stage2_same_start"] = {}
-    print(f"{'task':5s} {'stage 2 from IPOPT stage 1: IPM':>34s} {'its':>5s} {'ms/it':>6s} | {'IPOPT its':>9s} {'ms/it':>6s} | {'rel obj':>8s} {'max dq':>7s}")
+    print(
+        f"{'task':5s} {'stage 2 from IPOPT stage 1: IPM':>34s} {'its':>5s} {'ms/it':>6s} | {'IPOPT its':>9s} {'ms/it':>6s} | {'rel obj':>8s} {'max dq':>7s}"
+    )
     for task in args.tasks:
         r = results["stage2_same_start"][task] = stage2_same_start(task)
         a, b = r["ipm"], r["ipopt"]
-        print(f"{task:5s} {a['status'][:34]:>34s} {a['iterations']:5d} {a['ms_per_iteration']:6.1f} | "
-              f"{b['iterations']:9d} {b['ms_per_iteration']:6.1f} | {r['objective_rel_diff']:8.1e} {r['max_abs_dq_rad']:7.1e}")
+        print(
+            f"{task:5s} {a['status'][:34]:>34s} {a['iterations']:5d} {a['ms_per_iteration']:6.1f} | "
+            f"{b['iterations']:9d} {b['ms_per_iteration']:6.1f} | {r['objective_rel_diff']:8.1e} {r['max_abs_dq_rad']:7.1e}"
+        )
 
     if not args.skip_spread:
         results["stage1_rounding_spread"] = {}
-        print(f"{'task':5s} {'stage 1: IPOPT its (rounding variants)':>40s} {'optima':>8s} | {'IPM its':>7s} {'objective':>10s}")
+        print(
+            f"{'task':5s} {'stage 1: IPOPT its (rounding variants)':>40s} {'optima':>8s} | {'IPM its':>7s} {'objective':>10s}"
+        )
         for task in args.tasks:
             r = results["stage1_rounding_spread"][task] = rounding_spread(task)
-            print(f"{task:5s} {' '.join(str(v['iterations']) for v in r['ipopt']):>40s} {len(r['ipopt_distinct_optima']):8d} | "
-                  f"{r['ipm']['iterations']:7d} {r['ipm']['objective']:10.4g}")
+            print(
+                f"{task:5s} {' '.join(str(v['iterations']) for v in r['ipopt']):>40s} {len(r['ipopt_distinct_optima']):8d} | "
+                f"{r['ipm']['iterations']:7d} {r['ipm']['objective']:10.4g}"
+            )
 
     if not args.skip_compile:
         results["compile"] = c = compile_times()
-        print(f"IPM compile at N=100: cold {c['cold_compile_s']:.1f} s, warm (persistent cache) {c['warm_compile_s']:.1f} s")
+        print(
+            f"IPM compile at N=100: cold {c['cold_compile_s']:.1f} s, warm (persistent cache) {c['warm_compile_s']:.1f} s"
+        )
     if not args.skip_batch:
         results["batch"] = bt = batch_throughput(args.batch)
-        print(f"vmap batch of {bt['batch']}: {bt['batch_s']:.1f} s vs sequential {bt['sequential_s']:.1f} s "
-              f"(x{bt['speedup_batch_over_sequential']:.2f}); success {bt['batch_success']}/{bt['batch']}")
+        print(
+            f"vmap batch of {bt['batch']}: {bt['batch_s']:.1f} s vs sequential {bt['sequential_s']:.1f} s "
+            f"(x{bt['speedup_batch_over_sequential']:.2f}); success {bt['batch_success']}/{bt['batch']}"
+        )
     write({"scheme": SCHEME, "N": 100, "results": results}, args.out)
 
 

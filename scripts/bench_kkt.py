@@ -49,11 +49,10 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+from _bench import time_fn, write
 
 import jaxhumanoid  # noqa: F401  (float64)
 from jaxhumanoid.solvers.ipm import kkt
-
-from _bench import time_fn, write
 
 
 # ------------------------------------------------------------------------------------ data
@@ -65,6 +64,7 @@ def make_data(path: str) -> dict:
         return {k: z[k] for k in z.files}
     # the OCP and IPOPT stack is needed only to build the data once
     from bench_ipm import stage1_problem
+
     from jaxhumanoid.ocp import transcription as tr
     from jaxhumanoid.solvers.ipopt import solve_ipopt
     from jaxhumanoid.strategy import solve as strat
@@ -82,28 +82,39 @@ def make_data(path: str) -> dict:
         jv = np.asarray(nlp.jac_values(jnp.asarray(x), prob.p))
         g = np.asarray(nlp.g(jnp.asarray(x), prob.p))
         with np.errstate(divide="ignore", invalid="ignore"):
-            sx = np.where(np.isfinite(b.xl), r.z_l / np.maximum(x - b.xl, 1e-20), 0.0) \
-                + np.where(np.isfinite(b.xu), r.z_u / np.maximum(b.xu - x, 1e-20), 0.0)
+            sx = np.where(np.isfinite(b.xl), r.z_l / np.maximum(x - b.xl, 1e-20), 0.0) + np.where(
+                np.isfinite(b.xu), r.z_u / np.maximum(b.xu - x, 1e-20), 0.0
+            )
             ineq = b.gl < b.gu
             s = np.clip(g, b.gl, b.gu)
-            slack = np.minimum(np.where(np.isfinite(b.gl), s - b.gl, np.inf),
-                               np.where(np.isfinite(b.gu), b.gu - s, np.inf))
+            slack = np.minimum(
+                np.where(np.isfinite(b.gl), s - b.gl, np.inf), np.where(np.isfinite(b.gu), b.gu - s, np.inf)
+            )
             sig_s = np.abs(lam) / np.maximum(slack, 1e-20)
             dc = np.where(ineq, -1.0 / np.maximum(sig_s, 1e-20), 0.0)
         out[f"{label}_hess"], out[f"{label}_jac"] = hv, jv
         out[f"{label}_dx"], out[f"{label}_dc"] = sx, dc
         out[f"{label}_iters"] = np.asarray(r.iterations)
-        print(f"  {label}: IPOPT {r.iterations} iterations, {r.status}; Sigma_x in "
-              f"[{sx[sx > 0].min():.1e}, {sx.max():.1e}], -D_c in [{dc[dc < 0].min():.1e}, {dc[dc < 0].max():.1e}]")
+        print(
+            f"  {label}: IPOPT {r.iterations} iterations, {r.status}; Sigma_x in "
+            f"[{sx[sx > 0].min():.1e}, {sx.max():.1e}], -D_c in [{dc[dc < 0].min():.1e}, {dc[dc < 0].max():.1e}]"
+        )
     rng = np.random.default_rng(0)
     bounded = np.isfinite(b.xl) | np.isfinite(b.xu)
     out["synth_hess"], out["synth_jac"] = out["final_hess"], out["final_jac"]
     out["synth_dx"] = np.where(bounded, 10.0 ** rng.uniform(-8, 8, nlp.n), 0.0)
     out["synth_dc"] = np.where(b.gl < b.gu, -(10.0 ** rng.uniform(-8, 8, nlp.m)), 0.0)
     out["synth_iters"] = out["final_iters"]
-    for k, v in dict(n=nlp.n, m=nlp.m, var_stage=nlp.var_stage, con_stage=nlp.con_stage,
-                     hess_rows=nlp.hess_rows, hess_cols=nlp.hess_cols, jac_rows=nlp.jac_rows,
-                     jac_cols=nlp.jac_cols).items():
+    for k, v in dict(
+        n=nlp.n,
+        m=nlp.m,
+        var_stage=nlp.var_stage,
+        con_stage=nlp.con_stage,
+        hess_rows=nlp.hess_rows,
+        hess_cols=nlp.hess_cols,
+        jac_rows=nlp.jac_rows,
+        jac_cols=nlp.jac_cols,
+    ).items():
         out[k] = np.asarray(v)
     p.parent.mkdir(parents=True, exist_ok=True)
     np.savez(p, **out)
@@ -201,7 +212,7 @@ def find_shift(st, A, B):
     fac = kkt.factor(st, A, B)
     dc = 1e-9 if int(fac.nzero) > 0 else 0.0
     for j in range(-1, 14):
-        dw = 0.0 if j < 0 else 1e-4 * 8.0 ** j
+        dw = 0.0 if j < 0 else 1e-4 * 8.0**j
         A2 = kkt.add_diagonal(st, A, jnp.full(st.n, dw), jnp.full(st.m, -dc))
         if bool(kkt.inertia_ok(st, kkt.factor(st, A2, B))):
             return dw, dc
@@ -242,7 +253,7 @@ def run_case(K, st, D, label, dw, dcr, repeats, check, cache_dir):
         out["spsolve_backward_error"] = backward_error(Ks, s, ref, r)
         out["rel_diff_spsolve"] = float(np.linalg.norm((u - ref) / s) / np.linalg.norm(ref / s))
         npos, nneg, nzero, minabs = dense_inertia(Ks, cache_dir)
-        out["inertia_eigvalsh"] = [npos, nneg, nzero]      # nzero: |eig| <= n eps max|eig|
+        out["inertia_eigvalsh"] = [npos, nneg, nzero]  # nzero: |eig| <= n eps max|eig|
         out["min_abs_eig_equilibrated"] = minabs
         out["inertia_match"] = inertia_consistent(out["inertia"], out["inertia_eigvalsh"])
     return out
@@ -274,7 +285,7 @@ def _refinement_steps(K, st, fac, A, B, rx, rc, min_steps=1, max_steps=10, ratio
         u = jnp.where(go, u_new, u)
         res = jnp.where(go, r - K.matvec(A, B, u), res)
         steps = steps + go.astype(jnp.int32)
-    return steps - 1          # the first pass is the plain solve
+    return steps - 1  # the first pass is the plain solve
 
 
 def interleaved(cases, repeats):
@@ -290,24 +301,40 @@ def interleaved(cases, repeats):
             jax.block_until_ready(fn(*args))
             wall[k].append((time.perf_counter() - t0) * 1e3)
             cpu[k].append((time.process_time() - c0) * 1e3)
-    return {k: {"median_ms": float(np.median(wall[k])), "cpu_median_ms": float(np.median(cpu[k])),
-                "min_ms": float(np.min(wall[k]))} for k in cases}
+    return {
+        k: {
+            "median_ms": float(np.median(wall[k])),
+            "cpu_median_ms": float(np.median(cpu[k])),
+            "min_ms": float(np.min(wall[k])),
+        }
+        for k in cases
+    }
 
 
 def load_module(path: str):
     """A single-file kkt module from ``path``, importable as ``kkt_baseline``."""
     spec = importlib.util.spec_from_file_location("kkt_baseline", path)
     mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod          # dataclasses look the module up
+    sys.modules[spec.name] = mod  # dataclasses look the module up
     spec.loader.exec_module(mod)
     return mod
 
 
 def compare(D, K_old, repeats, labels):
     """Interleaved timing of the baseline module against this kkt package on the same matrices."""
-    sts = {name: K.build_structure(int(D["n"]), int(D["m"]), D["var_stage"], D["con_stage"], D["hess_rows"],
-                                   D["hess_cols"], D["jac_rows"], D["jac_cols"])
-           for name, K in (("old", K_old), ("new", kkt))}
+    sts = {
+        name: K.build_structure(
+            int(D["n"]),
+            int(D["m"]),
+            D["var_stage"],
+            D["con_stage"],
+            D["hess_rows"],
+            D["hess_cols"],
+            D["jac_rows"],
+            D["jac_cols"],
+        )
+        for name, K in (("old", K_old), ("new", kkt))
+    }
     rows = []
     rng = np.random.default_rng(1)
     rx, rc = jnp.asarray(rng.standard_normal(int(D["n"]))), jnp.asarray(rng.standard_normal(int(D["m"])))
@@ -315,8 +342,13 @@ def compare(D, K_old, repeats, labels):
         cases = {}
         for name, K in (("old", K_old), ("new", kkt)):
             st = sts[name]
-            A, B = K.assemble(st, jnp.asarray(D[f"{label}_hess"]), jnp.asarray(D[f"{label}_jac"]),
-                              jnp.asarray(D[f"{label}_dx"] + dw), jnp.asarray(D[f"{label}_dc"] - dc))
+            A, B = K.assemble(
+                st,
+                jnp.asarray(D[f"{label}_hess"]),
+                jnp.asarray(D[f"{label}_jac"]),
+                jnp.asarray(D[f"{label}_dx"] + dw),
+                jnp.asarray(D[f"{label}_dc"] - dc),
+            )
             ff = jax.jit(lambda A, B, K=K, st=st: K.factor(st, A, B))
             fac = ff(A, B)
             fs = jax.jit(lambda fac, A, B, rx, rc, K=K, st=st: K.solve(st, fac, A, B, rx, rc, 1, 10, 1e-10))
@@ -327,11 +359,14 @@ def compare(D, K_old, repeats, labels):
         t = interleaved(cases, repeats)
         row = {"label": label, "delta_w": dw, "delta_c": dc, "times": t}
         rows.append(row)
-        print(f"{label:6s} dw={dw:7.1e} dc={dc:5.0e}"
-              f"  factor {t['old_factor']['median_ms']:6.2f} -> {t['new_factor']['median_ms']:6.2f} ms"
-              f" (cpu {t['old_factor']['cpu_median_ms']:6.2f} -> {t['new_factor']['cpu_median_ms']:6.2f})"
-              f"  plain {t['old_plain']['median_ms']:5.2f} -> {t['new_plain']['median_ms']:5.2f}"
-              f"  refined {t['old_refined']['median_ms']:5.2f} -> {t['new_refined']['median_ms']:5.2f} ms", flush=True)
+        print(
+            f"{label:6s} dw={dw:7.1e} dc={dc:5.0e}"
+            f"  factor {t['old_factor']['median_ms']:6.2f} -> {t['new_factor']['median_ms']:6.2f} ms"
+            f" (cpu {t['old_factor']['cpu_median_ms']:6.2f} -> {t['new_factor']['cpu_median_ms']:6.2f})"
+            f"  plain {t['old_plain']['median_ms']:5.2f} -> {t['new_plain']['median_ms']:5.2f}"
+            f"  refined {t['old_refined']['median_ms']:5.2f} -> {t['new_refined']['median_ms']:5.2f} ms",
+            flush=True,
+        )
     return rows
 
 
@@ -343,15 +378,21 @@ def uptime() -> str:
 
 
 def _print_case(r, S):
-    print(f"  {r['module']:3s} {r['label']:6s} dw={r['delta_w']:7.1e} dc={r['delta_c']:5.0e}"
-          f" factor {r['factor']['median_ms']:6.2f} ms"
-          f" (cpu {r['factor']['cpu_median_ms']:6.2f})  plain {r['plain_solve']['median_ms']:5.2f}  refined"
-          f" {r['solve_refined']['median_ms']:5.2f} ms ({r['refinement_steps']:2d} st)  slow {r['slow_blocks']:3d}/{S}"
-          f"  berr {r['backward_error']:.0e}"
-          + (f" (spsolve {r['spsolve_backward_error']:.0e}, diff {r['rel_diff_spsolve']:.0e})"
-             f"  inertia {tuple(r['inertia'])}"
-             f" eig {tuple(r['inertia_eigvalsh'])} {'OK' if r['inertia_match'] else 'MISMATCH'}"
-             if 'inertia_eigvalsh' in r else f"  inertia {tuple(r['inertia'])}"), flush=True)
+    print(
+        f"  {r['module']:3s} {r['label']:6s} dw={r['delta_w']:7.1e} dc={r['delta_c']:5.0e}"
+        f" factor {r['factor']['median_ms']:6.2f} ms"
+        f" (cpu {r['factor']['cpu_median_ms']:6.2f})  plain {r['plain_solve']['median_ms']:5.2f}  refined"
+        f" {r['solve_refined']['median_ms']:5.2f} ms ({r['refinement_steps']:2d} st)  slow {r['slow_blocks']:3d}/{S}"
+        f"  berr {r['backward_error']:.0e}"
+        + (
+            f" (spsolve {r['spsolve_backward_error']:.0e}, diff {r['rel_diff_spsolve']:.0e})"
+            f"  inertia {tuple(r['inertia'])}"
+            f" eig {tuple(r['inertia_eigvalsh'])} {'OK' if r['inertia_match'] else 'MISMATCH'}"
+            if "inertia_eigvalsh" in r
+            else f"  inertia {tuple(r['inertia'])}"
+        ),
+        flush=True,
+    )
 
 
 def main():
@@ -361,16 +402,30 @@ def main():
     ap.add_argument("--data", default="/tmp/bench_kkt_data.npz")
     ap.add_argument("--labels", nargs="*", default=["it3", "it30", "final", "synth"])
     ap.add_argument("--no-check", action="store_true", help="skip the spsolve and eigvalsh references")
-    ap.add_argument("--baseline-kkt", default=None,
-                    help="a single-file kkt.py (`git show REV:jaxhumanoid/solvers/ipm/kkt.py > old.py`): "
-                         "the same checks for it, and timings interleaved with this one's")
+    ap.add_argument(
+        "--baseline-kkt",
+        default=None,
+        help="a single-file kkt.py (`git show REV:jaxhumanoid/solvers/ipm/kkt.py > old.py`): "
+        "the same checks for it, and timings interleaved with this one's",
+    )
     args = ap.parse_args()
     D = make_data(args.data)
     cache_dir = pathlib.Path(args.data).with_suffix(".eig")
     cache_dir.mkdir(exist_ok=True)
     modules = [("new", kkt)] + ([("old", load_module(args.baseline_kkt))] if args.baseline_kkt else [])
-    sts = {name: K.build_structure(int(D["n"]), int(D["m"]), D["var_stage"], D["con_stage"], D["hess_rows"],
-                                   D["hess_cols"], D["jac_rows"], D["jac_cols"]) for name, K in modules}
+    sts = {
+        name: K.build_structure(
+            int(D["n"]),
+            int(D["m"]),
+            D["var_stage"],
+            D["con_stage"],
+            D["hess_rows"],
+            D["hess_cols"],
+            D["jac_rows"],
+            D["jac_cols"],
+        )
+        for name, K in modules
+    }
     st = sts["new"]
     load_before = uptime()
     print(f"n={st.n} m={st.m} S={st.S} nb={st.nb} nbx={st.nbx}; {load_before}")
@@ -387,8 +442,16 @@ def main():
                 r["module"] = name
                 rows.append(r)
                 _print_case(r, st.S)
-    results = {"n": st.n, "m": st.m, "S": st.S, "nb": st.nb, "nbx": st.nbx,
-               "omp_num_threads": os.environ.get("OMP_NUM_THREADS"), "uptime_before": load_before, "cases": rows}
+    results = {
+        "n": st.n,
+        "m": st.m,
+        "S": st.S,
+        "nb": st.nb,
+        "nbx": st.nbx,
+        "omp_num_threads": os.environ.get("OMP_NUM_THREADS"),
+        "uptime_before": load_before,
+        "cases": rows,
+    }
     if args.baseline_kkt:
         print(f"interleaved timings, baseline -> this kkt package (medians of {args.repeats}); {uptime()}")
         results["interleaved"] = compare(D, modules[1][1], args.repeats, shifts)

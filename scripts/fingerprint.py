@@ -52,8 +52,7 @@ def task_records(task: str) -> dict:
 
 
 def testproblem_records() -> dict:
-    cases = {**tp.HS_PROBLEMS, "wachter_biegler": tp.wachter_biegler,
-             "infeasible_disk": tp.infeasible_disk}
+    cases = {**tp.HS_PROBLEMS, "wachter_biegler": tp.wachter_biegler, "infeasible_disk": tp.infeasible_disk}
     out = {}
     for name, make in cases.items():
         nlp, bounds, p = make()[:3]
@@ -84,8 +83,10 @@ def compare(a: dict, b: dict) -> int:
                 bad += not same
                 fa = f"{ra['iterations']} {ra['objective']:.12g}"
                 fb = f"{rb['iterations']} {rb['objective']:.12g}"
-                print(f"{key + ' ' + sub:<34} {fa:>28} {fb:>28} {d:9.1e}{'' if same else '  DIFFERS'}"
-                      f"{'  (x bitwise equal)' if ra['x'] == rb['x'] else ''}")
+                print(
+                    f"{key + ' ' + sub:<34} {fa:>28} {fb:>28} {d:9.1e}{'' if same else '  DIFFERS'}"
+                    f"{'  (x bitwise equal)' if ra['x'] == rb['x'] else ''}"
+                )
     for key, va in a.get("sensitivities", {}).items():
         vb = b.get("sensitivities", {}).get(key, float("nan"))
         print(f"{key:<60} {va:10.3e} {vb:10.3e}")

@@ -39,17 +39,29 @@ def run(task="T1", N=15, T=5.0, scheme="A,F+C,1S", method="gn", seed=0, max_eval
         theta = fit.lbfgs(max_evals=max_evals or 80)
     else:
         raise ValueError(f"method: {method!r} not in ('gn', 'lbfgs')")
-    out = {"task": prob.task.key, "scheme": scheme, "N": N, "method": method, "seed": seed, "data_objective": data.objective, **fit.summary(theta, w_true)}
+    out = {
+        "task": prob.task.key,
+        "scheme": scheme,
+        "N": N,
+        "method": method,
+        "seed": seed,
+        "data_objective": data.objective,
+        **fit.summary(theta, w_true),
+    }
     out["wall_time_s"] = time.perf_counter() - t_start
     out["history"] = fit.history
     return out
 
 
 def print_table(outs) -> None:
-    print(f"\n{'task':<5} {'method':<6} {'initial factors (w0/w_true)':<44} {'max rel err w':>13} {'max |dq| rad':>12} {'loss0':>9} {'loss':>9} {'solves':>6} {'wall s':>7}")
+    print(
+        f"\n{'task':<5} {'method':<6} {'initial factors (w0/w_true)':<44} {'max rel err w':>13} {'max |dq| rad':>12} {'loss0':>9} {'loss':>9} {'solves':>6} {'wall s':>7}"
+    )
     for o in outs:
         f0 = " ".join(f"{f:.2f}" for f in o["initial_factors"])
-        print(f"{o['task']:<5} {o['method']:<6} {f0:<44} {o['max_rel_weight_error']:13.2e} {o['max_abs_q_error_rad']:12.2e} {o['loss_initial']:9.2e} {o['loss_final']:9.2e} {o['solves']:6d} {o['wall_time_s']:7.1f}")
+        print(
+            f"{o['task']:<5} {o['method']:<6} {f0:<44} {o['max_rel_weight_error']:13.2e} {o['max_abs_q_error_rad']:12.2e} {o['loss_initial']:9.2e} {o['loss_final']:9.2e} {o['solves']:6d} {o['wall_time_s']:7.1f}"
+        )
 
 
 def main(argv=None):

@@ -9,6 +9,7 @@ by more than 1e-2. The default run covers T3 (every parameter group) and T1 (two
 one inverse problem; ``-m slow`` adds every group on T1, T2, T4 and the inverse problem on all
 four tasks.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -176,6 +177,7 @@ def test_grad_through_ipm_matches_ipopt_and_fd():
         def loss(w):
             x, point = solve(dataclasses.replace(prob.p, weights=w), warm)
             return jnp.dot(ct, x), point
+
         return loss
 
     ipm = S.make_solve(prob, solver="ipm", options={"tol": 1e-10})
@@ -189,7 +191,6 @@ def test_grad_through_ipm_matches_ipopt_and_fd():
     assert abs(float(np.asarray(g_ipm) @ dw) - fd) < 1e-4 * abs(fd)
     with pytest.raises(ValueError, match="solver"):
         S.make_solve(prob, solver="casadi")
-
 
 
 # Inverse optimal control: weights perturbed by factors 2-5 are recovered from the trajectory.

@@ -8,11 +8,11 @@ import pytest
 import jaxhumanoid  # noqa: F401  (float64)
 from jaxhumanoid.model.params import ContactParams
 from jaxhumanoid.ocp.nlp import Bounds
-from jaxhumanoid.validation import testproblems as tp
 from jaxhumanoid.solvers.ipm import IPMOptions, batch_solve_ipm, kkt, solve_ipm
 from jaxhumanoid.solvers.ipopt import solve_cyipopt_reference, solve_ipopt
 from jaxhumanoid.strategy import solve as strat
 from jaxhumanoid.strategy.problem import build_problem
+from jaxhumanoid.validation import testproblems as tp
 
 # degenerate HS013 (no constraint qualification at x*): IPOPT 3.14 and the IPM both stop at
 # f = 0.994579 after 55 iterations, 5.4e-3 from f* = 1
@@ -25,8 +25,9 @@ F_TOL = {"hs013": 1e-2}
 FAST_HS = ("hs071", "hs035", "hs010")
 
 
-@pytest.mark.parametrize("name", [n if n in FAST_HS else pytest.param(n, marks=pytest.mark.slow)
-                                  for n in sorted(tp.HS_PROBLEMS)])
+@pytest.mark.parametrize(
+    "name", [n if n in FAST_HS else pytest.param(n, marks=pytest.mark.slow) for n in sorted(tp.HS_PROBLEMS)]
+)
 def test_hock_schittkowski_optimum(name):
     nlp, bounds, p, f_star = tp.HS_PROBLEMS[name]()
     r = solve_ipm(nlp, p, bounds)
@@ -49,8 +50,9 @@ def test_hs071_multipliers_match_ipopt_convention():
     np.testing.assert_allclose(grad + J.T @ r.lam_g - r.z_l + r.z_u, 0.0, atol=1e-6)
 
 
-@pytest.mark.parametrize("x0,status", [((-2.0, 1.0, 1.0), "Infeasible_Problem_Detected"),
-                                       ((-1.0, 3.0, 0.5), "Solve_Succeeded")])
+@pytest.mark.parametrize(
+    "x0,status", [((-2.0, 1.0, 1.0), "Infeasible_Problem_Detected"), ((-1.0, 3.0, 0.5), "Solve_Succeeded")]
+)
 def test_restoration_phase_as_ipopt_on_wachter_biegler_example(x0, status):
     """The filter line search fails on this example and both starts enter the l1 restoration
     phase; IPOPT 3.14 then ends at the locally infeasible point (-1, 0, 0) from the paper's start
@@ -104,7 +106,7 @@ def test_vmap_batch_of_perturbed_hs071():
         rs = solve_ipm(nlp, jnp.asarray(pk), bounds)
         assert abs(rs.objective - rb.objective) < 1e-7
         np.testing.assert_allclose(rb.x, rs.x, atol=1e-6)
-        assert rs.iterations == rb.iterations      # frozen members do not drift
+        assert rs.iterations == rb.iterations  # frozen members do not drift
     assert len({r.iterations for r in res}) >= 1
 
 
@@ -119,13 +121,16 @@ def test_warm_start_and_max_iter():
     assert "EXIT: Maximum_Iterations_Exceeded" in short.log
 
 
-@pytest.mark.parametrize("bad, match", [
-    ({"tol": -1.0}, "tol"),
-    ({"kappa_mu": 1.5}, "kappa_mu"),
-    ({"max_iter": 0}, "max_iter"),
-    ({"nlp_scaling_method": "foo"}, "nlp_scaling_method.*gradient-based"),
-    ({"no_such_option": 1}, "unknown IPM option"),
-])
+@pytest.mark.parametrize(
+    "bad, match",
+    [
+        ({"tol": -1.0}, "tol"),
+        ({"kappa_mu": 1.5}, "kappa_mu"),
+        ({"max_iter": 0}, "max_iter"),
+        ({"nlp_scaling_method": "foo"}, "nlp_scaling_method.*gradient-based"),
+        ({"no_such_option": 1}, "unknown IPM option"),
+    ],
+)
 def test_bad_options_raise(bad, match):
     with pytest.raises(ValueError, match=match):
         IPMOptions(**bad) if "no_such_option" not in bad else solve_ipm(*tp.hs071()[:1], None, None, options=bad)
@@ -147,13 +152,17 @@ def test_humanoid_pseudo_static_stage_small_n_as_ipopt():
     assert abs(r.iterations - ref.iterations) <= 0.1 * ref.iterations, (r.iterations, ref.iterations)
     assert abs(r.objective - ref.objective) <= 1e-8 * abs(ref.objective)
     np.testing.assert_allclose(r.x, ref.x, atol=1e-5)
+
     # the reported multipliers make the Lagrangian stationary (IPOPT's sign convention), as
     # closely as IPOPT's own (both stop on the scaled problem's dual infeasibility)
     def stationarity(res):
         grad = np.asarray(prob.nlp.grad(jnp.asarray(res.x), prob.p))
         jt = np.zeros(prob.nlp.n)
-        np.add.at(jt, prob.nlp.jac_cols,
-                  np.asarray(prob.nlp.jac_values(jnp.asarray(res.x), prob.p)) * res.lam_g[prob.nlp.jac_rows])
+        np.add.at(
+            jt,
+            prob.nlp.jac_cols,
+            np.asarray(prob.nlp.jac_values(jnp.asarray(res.x), prob.p)) * res.lam_g[prob.nlp.jac_rows],
+        )
         return np.max(np.abs(grad + jt - res.z_l + res.z_u))
 
     assert stationarity(r) <= max(10 * stationarity(ref), 1e-6), (stationarity(r), stationarity(ref))

@@ -6,9 +6,9 @@ import dataclasses
 import jax
 import numpy as np
 
-from jaxhumanoid.validation import testproblems as tp
 from jaxhumanoid.solvers.ipm import IPMOptions, solve_ipm
 from jaxhumanoid.solvers.ipm.options import FLOAT_FIELDS, STATIC_FIELDS, as_float64
+from jaxhumanoid.validation import testproblems as tp
 
 
 def test_float_fields_are_leaves_and_the_rest_is_structure():

@@ -9,7 +9,6 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxhumanoid.validation import testproblems as tp
 from jaxhumanoid.solvers.ipm import barrier, inertia, linesearch, restoration, step, termination
 from jaxhumanoid.solvers.ipm.algorithm import initial_state
 from jaxhumanoid.solvers.ipm.filter import filter_add, filter_ok, filter_reset
@@ -17,6 +16,7 @@ from jaxhumanoid.solvers.ipm.options import IPMOptions
 from jaxhumanoid.solvers.ipm.problem import make_context, make_prob
 from jaxhumanoid.solvers.ipm.state import Evals, Iterate, Prob, Resto, fresh_globalization, inactive_resto
 from jaxhumanoid.solvers.status import Status
+from jaxhumanoid.validation import testproblems as tp
 
 O = IPMOptions()
 INF = np.inf
@@ -26,9 +26,22 @@ def box_prob(xl, xu, gl=(), gu=(), sf=1.0):
     """A Prob with the given (unrelaxed, unscaled) bounds; no fixed variables."""
     xl, xu, gl, gu = (jnp.asarray(v, float) for v in (xl, xu, gl, gu))
     eq = gl == gu
-    return Prob(p=None, xl=xl, xu=xu, gl=gl, gu=gu, hxl=jnp.isfinite(xl), hxu=jnp.isfinite(xu),
-                fixed=jnp.zeros(xl.shape, bool), eq=eq, hsl=jnp.isfinite(gl) & ~eq, hsu=jnp.isfinite(gu) & ~eq,
-                free=~eq & ~jnp.isfinite(gl) & ~jnp.isfinite(gu), sf=jnp.asarray(sf), sg=jnp.ones(gl.shape))
+    return Prob(
+        p=None,
+        xl=xl,
+        xu=xu,
+        gl=gl,
+        gu=gu,
+        hxl=jnp.isfinite(xl),
+        hxu=jnp.isfinite(xu),
+        fixed=jnp.zeros(xl.shape, bool),
+        eq=eq,
+        hsl=jnp.isfinite(gl) & ~eq,
+        hsu=jnp.isfinite(gu) & ~eq,
+        free=~eq & ~jnp.isfinite(gl) & ~jnp.isfinite(gu),
+        sf=jnp.asarray(sf),
+        sg=jnp.ones(gl.shape),
+    )
 
 
 # ---------------------------------------------------------------- filter (Sec. 2.3)
@@ -72,9 +85,9 @@ def test_switching_armijo_and_sufficient_decrease():
 
 # ---------------------------------------------------------------- barrier update (7) and its floor
 def test_mu_update_rule_and_floor():
-    assert float(barrier.next_mu(O, 0.1, 0.0)) == pytest.approx(0.02)                # kappa_mu mu
-    assert float(barrier.next_mu(O, 1e-3, 0.0)) == pytest.approx(1e-3 ** 1.5)        # mu^theta_mu
-    assert float(barrier.next_mu(O, 1e-9, 1e-8)) == 1e-8                             # the floor
+    assert float(barrier.next_mu(O, 0.1, 0.0)) == pytest.approx(0.02)  # kappa_mu mu
+    assert float(barrier.next_mu(O, 1e-3, 0.0)) == pytest.approx(1e-3**1.5)  # mu^theta_mu
+    assert float(barrier.next_mu(O, 1e-9, 1e-8)) == 1e-8  # the floor
     P = box_prob([0.0], [INF], sf=0.5)
     assert float(barrier.mu_floor(O, P)) == pytest.approx(min(1e-8, 1e-4 * 0.5) / 11.0)
 
@@ -86,16 +99,18 @@ def test_mu_decreases_while_the_barrier_error_is_small():
     mu, n = barrier.update_mu(O, jnp.asarray(0.1), 1e-9, err, jnp.zeros((), bool), jnp.zeros((), bool))
     # 0.1 -> 0.02 -> 0.004 -> 0.004^1.5 = 2.53e-4 -> 4.0e-6: E_mu = 1e-3 > kappa_eps mu stops it
     expected, k = 0.1, 0
-    while 1e-3 <= 10.0 * expected:
-        expected, k = min(0.2 * expected, expected ** 1.5), k + 1
+    while 10.0 * expected >= 1e-3:
+        expected, k = min(0.2 * expected, expected**1.5), k + 1
     assert int(n) == k == 4 and float(mu) == pytest.approx(expected)
-    mu, n = barrier.update_mu(O, jnp.asarray(0.1), 1e-9, lambda mu: jnp.asarray(10.0), jnp.ones((), bool),
-                              jnp.zeros((), bool))
+    mu, n = barrier.update_mu(
+        O, jnp.asarray(0.1), 1e-9, lambda mu: jnp.asarray(10.0), jnp.ones((), bool), jnp.zeros((), bool)
+    )
     assert int(n) == 1 and float(mu) == pytest.approx(0.02), "a forced update happens once"
     _, n = barrier.update_mu(O, jnp.asarray(0.1), 1e-9, err, jnp.zeros((), bool), jnp.ones((), bool))
     assert int(n) == 0, "no update in the restoration phase's first iteration"
-    mu, n = barrier.update_mu(O, jnp.asarray(0.1), 1e-3, lambda mu: jnp.asarray(0.0), jnp.zeros((), bool),
-                              jnp.zeros((), bool))
+    mu, n = barrier.update_mu(
+        O, jnp.asarray(0.1), 1e-3, lambda mu: jnp.asarray(0.0), jnp.zeros((), bool), jnp.zeros((), bool)
+    )
     assert float(mu) == 1e-3 and int(n) == 3
 
 
@@ -109,8 +124,9 @@ def test_fraction_to_the_boundary():
     a = step.frac_to_boundary(P, x, s, jnp.array([0.0, 4.0]), jnp.array([-0.1]), tau)
     assert float(a) == pytest.approx(tau * 1.0 / 4.0)
     assert float(step.frac_to_boundary(P, x, s, jnp.array([0.1, -5.0]), jnp.array([1.0]), tau)) == 1.0
-    assert float(step.frac_dual(jnp.array([2.0, 1.0]), jnp.array([-4.0, -0.5]), jnp.array([True, True]), tau)) \
-        == pytest.approx(tau * 0.5)
+    assert float(
+        step.frac_dual(jnp.array([2.0, 1.0]), jnp.array([-4.0, -0.5]), jnp.array([True, True]), tau)
+    ) == pytest.approx(tau * 0.5)
 
 
 def test_kappa_sigma_safeguard():
@@ -150,8 +166,10 @@ def test_degeneracy_test_bookkeeping():
     assert (float(dc), bool(grow), int(test)) == (dcd, True, inertia.T_CX)
     # decided: delta_c first, then delta_w
     decided = jnp.array([N, N, 0], jnp.int32)
-    assert (float(inertia.singular_rule(inertia.T_NONE, decided, 0.0, dcd)[0]),
-            bool(inertia.singular_rule(inertia.T_NONE, decided, 0.0, dcd)[1])) == (dcd, False)
+    assert (
+        float(inertia.singular_rule(inertia.T_NONE, decided, 0.0, dcd)[0]),
+        bool(inertia.singular_rule(inertia.T_NONE, decided, 0.0, dcd)[1]),
+    ) == (dcd, False)
     assert bool(inertia.singular_rule(inertia.T_NONE, decided, dcd, dcd)[1])
 
 
@@ -159,8 +177,20 @@ def _ic(nlp, Wvals, jac, dw_last, pert, mu=0.1):
     ctx = make_context(nlp, O)
     P = box_prob([-INF] * nlp.n, [INF] * nlp.n, [0.0] * nlp.m, [0.0] * nlp.m)
     zn, zm = jnp.zeros(nlp.n), jnp.zeros(nlp.m)
-    return inertia.inertia_corrected_factor(ctx, P, jnp.zeros(nlp.m, bool), jnp.asarray(Wvals), jnp.asarray(jac),
-                                            zn, zm, zm, zm, jnp.asarray(dw_last), mu, jnp.asarray(pert, jnp.int32))
+    return inertia.inertia_corrected_factor(
+        ctx,
+        P,
+        jnp.zeros(nlp.m, bool),
+        jnp.asarray(Wvals),
+        jnp.asarray(jac),
+        zn,
+        zm,
+        zm,
+        zm,
+        jnp.asarray(dw_last),
+        mu,
+        jnp.asarray(pert, jnp.int32),
+    )
 
 
 def test_inertia_correction_of_a_nonconvex_hessian():
@@ -179,11 +209,12 @@ def test_degenerate_jacobian_is_detected_after_degen_iters_max():
     """A constraint with a vanishing gradient makes K singular; (delta_c, 0) cures it. After
     degen_iters_max such iterations the Jacobian is declared degenerate and delta_c is applied
     from the first trial on."""
-    nlp = tp.dense_nlp("ic_degenerate", 2, 2, lambda x, p: 0.5 * jnp.sum(x ** 2),
-                       lambda x, p: jnp.array([x[0] + x[1], 0.0 * x[0]]))
+    nlp = tp.dense_nlp(
+        "ic_degenerate", 2, 2, lambda x, p: 0.5 * jnp.sum(x**2), lambda x, p: jnp.array([x[0] + x[1], 0.0 * x[0]])
+    )
     hess, jac = [1.0, 0.0, 1.0], [1.0, 1.0, 0.0, 0.0]
     pert, mu = jnp.zeros(3, jnp.int32), 0.1
-    dcd = O.jacobian_regularization_value * mu ** O.jacobian_regularization_exponent
+    dcd = O.jacobian_regularization_value * mu**O.jacobian_regularization_exponent
     for k in range(O.degen_iters_max):
         r = _ic(nlp, hess, jac, 0.0, pert, mu)
         assert bool(r.ok) and int(r.n_fact) == 2 and float(r.dw) == 0.0
@@ -199,8 +230,9 @@ def test_degenerate_jacobian_is_detected_after_degen_iters_max():
 @pytest.fixture(scope="module")
 def shifted():
     """min |x|^2/2 s.t. x0 + 1 = 0, x1 - 2 = 0, started at x = 0 where c = (1, -2)."""
-    nlp = tp.dense_nlp("resto_shift", 2, 2, lambda x, p: 0.5 * jnp.sum(x ** 2),
-                       lambda x, p: jnp.array([x[0] + 1.0, x[1] - 2.0]))
+    nlp = tp.dense_nlp(
+        "resto_shift", 2, 2, lambda x, p: 0.5 * jnp.sum(x**2), lambda x, p: jnp.array([x[0] + 1.0, x[1] - 2.0])
+    )
     ctx = make_context(nlp, O)
     P, x0 = make_prob(ctx, jnp.zeros(2), [-INF] * 2, [INF] * 2, [0.0, 0.0], [0.0, 0.0], None)
     return ctx, P, initial_state(ctx, P, x0)
@@ -212,17 +244,17 @@ def test_restoration_entry_initialises_p_n_by_ipopts_formula(shifted):
     np.testing.assert_allclose(S.ev.g, c)
     Sr = restoration.enter_restoration(ctx, P, S, 0.1, 3.0, 0.5)
     R, rho = Sr.rs, O.resto_penalty_parameter
-    mu_r = max(0.1, 2.0)                        # max(mu, ||c||_inf)
+    mu_r = max(0.1, 2.0)  # max(mu, ||c||_inf)
     a = mu_r / (2 * rho) - c / 2
     n = a + np.sqrt(a * a + c * mu_r / (2 * rho))
     np.testing.assert_allclose(R.n, n, rtol=1e-14)
     np.testing.assert_allclose(R.p, c + n, rtol=1e-14)
-    np.testing.assert_allclose(np.asarray(R.p) - np.asarray(R.n), c, atol=1e-14)   # c - p + n = 0
+    np.testing.assert_allclose(np.asarray(R.p) - np.asarray(R.n), c, atol=1e-14)  # c - p + n = 0
     np.testing.assert_allclose(R.zp, mu_r / np.asarray(R.p))
     np.testing.assert_allclose(R.zn, mu_r / np.asarray(R.n))
     assert bool(R.on) and bool(R.fresh) and float(Sr.mu) == mu_r and float(R.mu_orig) == 0.1
     np.testing.assert_array_equal(Sr.it.y, 0.0)
-    np.testing.assert_allclose(R.dr, 1.0)       # 1/max(1, |x_R|)^2 at x_R = 0
+    np.testing.assert_allclose(R.dr, 1.0)  # 1/max(1, |x_R|)^2 at x_R = 0
     assert int(Sr.gl.filt_n) == 0 and float(Sr.gl.theta_max) == O.resto_theta_max_fact
     assert float(R.theta_ref) == 3.0 and float(R.inf_ref) == 2.0
     assert float(R.outer.theta_max) == float(S.gl.theta_max)
@@ -239,8 +271,7 @@ def test_restoration_return_test(shifted):
     assert bool(restoration.restoration_done(O, P, R, f, jnp.array([0.5, -1.75]), jnp.zeros(2), jnp.zeros(2)))
     # a point the outer filter blocks is not a return point
     blocked = R._replace(outer=filter_add(O, R.outer, 0.0, -1e300))
-    assert not bool(restoration.restoration_done(O, P, blocked, f, jnp.zeros(2), jnp.array([-1.0, 2.0]),
-                                                 jnp.zeros(2)))
+    assert not bool(restoration.restoration_done(O, P, blocked, f, jnp.zeros(2), jnp.array([-1.0, 2.0]), jnp.zeros(2)))
 
 
 def test_leaving_restoration_steps_the_bound_multipliers(shifted):
@@ -260,7 +291,7 @@ def test_leaving_restoration_steps_the_bound_multipliers(shifted):
     a_du = 0.99 * 2.0 / -dz
     assert float(out.it.zl[0]) == pytest.approx(2.0 + a_du * dz) and float(out.it.zl[0]) == pytest.approx(0.02)
     assert not bool(out.rs.on) and float(out.mu) == 0.1 and float(jnp.max(jnp.abs(out.it.y))) == 0.0
-    out = leave(1e-5, 1e-5, 0.0)            # dz = mu / a = 1e4
+    out = leave(1e-5, 1e-5, 0.0)  # dz = mu / a = 1e4
     np.testing.assert_array_equal(out.it.zl, [1.0, 0.0])
 
 
@@ -271,8 +302,15 @@ def test_optimality_errors_known_values():
     nlp = tp.dense_nlp("errors", 2, 1, lambda x, p: x[0], lambda x, p: jnp.array([x[0] - x[1]]))
     ctx = make_context(nlp, O)
     P = box_prob([0.0, -INF], [INF, INF], [0.0], [0.0])
-    it = Iterate(jnp.array([1.0, 1.0]), jnp.zeros(1), jnp.array([0.5]), jnp.array([1.5, 0.0]), jnp.zeros(2),
-                 jnp.zeros(1), jnp.zeros(1))
+    it = Iterate(
+        jnp.array([1.0, 1.0]),
+        jnp.zeros(1),
+        jnp.array([0.5]),
+        jnp.array([1.5, 0.0]),
+        jnp.zeros(2),
+        jnp.zeros(1),
+        jnp.zeros(1),
+    )
     ev = Evals(jnp.asarray(1.0), jnp.zeros(1), jnp.array([1.0, 0.0]), jnp.array([1.0, -1.0]))
     e = termination.errors(ctx, P, it, ev, 0.5, inactive_resto(2, 1, 4))
     assert float(e.dual) == 0.5 and float(e.primal) == 0.0 and float(e.compl) == 1.5
@@ -280,9 +318,17 @@ def test_optimality_errors_known_values():
 
 
 def _status(**kw):
-    args = dict(prior=int(Status.Running), finite=True, converged=False, resto_converged=False,
-                resto_code=int(Status.Infeasible_Problem_Detected), acceptable_stop=False, tiny_stop=False,
-                acceptable_point=False, out_of_iterations=False)
+    args = dict(
+        prior=int(Status.Running),
+        finite=True,
+        converged=False,
+        resto_converged=False,
+        resto_code=int(Status.Infeasible_Problem_Detected),
+        acceptable_stop=False,
+        tiny_stop=False,
+        acceptable_point=False,
+        out_of_iterations=False,
+    )
     args.update(kw)
     args = {k: jnp.asarray(v) for k, v in args.items()}
     return Status(int(termination.decide_status(**args)))

@@ -60,7 +60,7 @@ def test_block_tridiagonal_solve_and_inertia(S, nx, nc, shift):
     assert st.S == S and st.size >= n + m
     hv = rng.standard_normal(hr.size)
     jv = rng.standard_normal(jr.size)
-    dx = rng.uniform(0.0, 1.0, n) + shift      # indefinite W when shift == 0
+    dx = rng.uniform(0.0, 1.0, n) + shift  # indefinite W when shift == 0
     dc = -rng.uniform(0.0, 1e-3, m)
     A, B = kkt.assemble(st, jnp.asarray(hv), jnp.asarray(jv), jnp.asarray(dx), jnp.asarray(dc))
     K = sparse_kkt(n, m, hr, hc, hv, jr, jc, jv, dx, dc)
@@ -110,8 +110,9 @@ def test_early_exit_decides_inertia_as_the_full_factorisation():
     # the exit comes early where W is indefinite everywhere; under vmap a block is skipped only
     # where every member has decided, and each member decides as alone
     shifts = jnp.array([-3.0, -1.5, 8.0])
-    A, B = jax.vmap(lambda t: kkt.assemble(st, jnp.asarray(hv), jnp.asarray(jv), jnp.asarray(dx0) + t,
-                                           -1e-3 * jnp.ones(m)))(shifts)
+    A, B = jax.vmap(
+        lambda t: kkt.assemble(st, jnp.asarray(hv), jnp.asarray(jv), jnp.asarray(dx0) + t, -1e-3 * jnp.ones(m))
+    )(shifts)
     assert np.sum(np.asarray(kkt.pivot_paths(st, A[0], B[0], early_exit=True)) == 3) >= st.S // 2
     for sel, skipped in ((np.array([0, 1]), True), (np.array([0, 2]), False)):
         fb = jax.vmap(lambda A_, B_: kkt.factor(st, A_, B_, early_exit=True))(A[sel], B[sel])
@@ -120,29 +121,31 @@ def test_early_exit_decides_inertia_as_the_full_factorisation():
         for j, i in enumerate(sel):
             assert bool(kkt.inertia_ok(st, jax.tree.map(lambda a, j=j: a[j], fb))) == (i == 2)
         if not skipped:
-            np.testing.assert_allclose(np.asarray(fb.N[1]), np.asarray(kkt.factor(st, A[2], B[2]).N),
-                                       rtol=1e-12, atol=1e-14)
+            np.testing.assert_allclose(
+                np.asarray(fb.N[1]), np.asarray(kkt.factor(st, A[2], B[2]).N), rtol=1e-12, atol=1e-14
+            )
 
 
 def test_singular_kkt_reports_zero_eigenvalue():
     # two identical equality-constraint rows, no dual regularisation: K is singular
     n, m = 3, 2
-    st = kkt.build_structure(n, m, np.zeros(3), np.zeros(2), np.arange(3), np.arange(3),
-                             np.array([0, 0, 1, 1]), np.array([0, 1, 0, 1]))
+    st = kkt.build_structure(
+        n, m, np.zeros(3), np.zeros(2), np.arange(3), np.arange(3), np.array([0, 0, 1, 1]), np.array([0, 1, 0, 1])
+    )
     A, B = kkt.assemble(st, jnp.ones(3), jnp.array([1.0, 2.0, 1.0, 2.0]), jnp.zeros(3), jnp.zeros(2))
     fac = kkt.factor(st, A, B)
     assert int(fac.nzero) >= 1
     assert not bool(kkt.inertia_ok(st, fac))
-    A, B = kkt.assemble(st, jnp.ones(3), jnp.array([1.0, 2.0, 1.0, 2.0]), jnp.zeros(3),
-                        -1e-8 * jnp.ones(2))
+    A, B = kkt.assemble(st, jnp.ones(3), jnp.array([1.0, 2.0, 1.0, 2.0]), jnp.zeros(3), -1e-8 * jnp.ones(2))
     fac = kkt.factor(st, A, B)
     assert bool(kkt.inertia_ok(st, fac))
 
 
 def test_structure_rejects_non_tridiagonal_coupling():
     with pytest.raises(ValueError, match="block-tridiagonal"):
-        kkt.build_structure(3, 1, np.array([0, 1, 2]), np.array([0]), np.arange(3), np.arange(3),
-                            np.array([0, 0]), np.array([0, 2]))
+        kkt.build_structure(
+            3, 1, np.array([0, 1, 2]), np.array([0]), np.arange(3), np.arange(3), np.array([0, 0]), np.array([0, 2])
+        )
 
 
 def ocp_like_pattern(rng, S, nx, nc, n0):
@@ -154,7 +157,7 @@ def ocp_like_pattern(rng, S, nx, nc, n0):
     jr, jc = [], []
     for j, k in enumerate(con_stage):
         jr.append(j)
-        jc.append(first[k + 1] + j % nc)                      # x_{k+1} term
+        jc.append(first[k + 1] + j % nc)  # x_{k+1} term
         own = np.arange(first[k], first[k + 1])
         for i in rng.choice(own, size=min(2, own.size), replace=False):
             jr.append(j)
@@ -173,7 +176,7 @@ def test_structurally_singular_first_block_is_eliminated_last():
     assert np.all(st.var_pos[vs == 0] // st.nb == 0), "stage 0 must be the border (last pivot) block"
     hv = rng.uniform(0.5, 2.0, hr.size)
     jv = rng.standard_normal(jr.size)
-    dc = np.zeros(m)                                           # equality rows, no regularisation
+    dc = np.zeros(m)  # equality rows, no regularisation
     A, B = kkt.assemble(st, jnp.asarray(hv), jnp.asarray(jv), jnp.zeros(n), jnp.asarray(dc))
     K = sparse_kkt(n, m, hr, hc, hv, jr, jc, jv, np.zeros(n), dc)
     ev = np.linalg.eigvalsh(K.toarray())
@@ -183,7 +186,6 @@ def test_structurally_singular_first_block_is_eliminated_last():
     r = rng.standard_normal(n + m)
     ux, uc = kkt.solve(st, fac, A, B, jnp.asarray(r[:n]), jnp.asarray(r[n:]))
     np.testing.assert_allclose(np.concatenate([ux, uc]), spla.spsolve(K, r), rtol=1e-8, atol=1e-8)
-
 
 
 def double_integrator_pattern(S, nq, nu, h=0.1):
@@ -206,9 +208,11 @@ def double_integrator_pattern(S, nq, nu, h=0.1):
                 jr.append(j), jc.append(c), jv.append(v)
             con_stage.append(k)
             j = len(con_stage)
-            ent = [(idx[k + 1][("v", i)], 1.0), (idx[k + 1][("q", (i + 1) % nq)], 0.3 * h),
-                   (idx[k][("u", i % nu)], -h)] \
-                + ([(idx[k][("v", i)], -1.0)] if k else [])
+            ent = [
+                (idx[k + 1][("v", i)], 1.0),
+                (idx[k + 1][("q", (i + 1) % nq)], 0.3 * h),
+                (idx[k][("u", i % nu)], -h),
+            ] + ([(idx[k][("v", i)], -1.0)] if k else [])
             for c, v in ent:
                 jr.append(j), jc.append(c), jv.append(v)
             con_stage.append(k)
@@ -230,16 +234,16 @@ def test_indefinite_state_hessian_fast_path_and_fallback(q_curv):
         for nm, i in idx[k].items():
             hr.append(i), hc.append(i)
             hv.append({"q": q_curv, "v": 1.0, "u": 1e-2}[nm[0]] * rng.uniform(0.5, 1.5))
-        if k:                                  # q-v coupling within a stage
+        if k:  # q-v coupling within a stage
             for i in range(nq):
                 r_, c_ = sorted((idx[k][("q", i)], idx[k][("v", i)]), reverse=True)
                 hr.append(r_), hc.append(c_), hv.append(0.2)
     hr, hc, hv = np.array(hr), np.array(hc), np.array(hv)
     st = kkt.build_structure(n, m, vs, cs, hr, hc, jr, jc)
-    assert np.all(st.var_pos[vs == 0] // st.nb == 0)          # stage 0 is the border
-    assert np.all(st.b_rows < st.nbx)                         # fill on primal rows: diagonal R path
+    assert np.all(st.var_pos[vs == 0] // st.nb == 0)  # stage 0 is the border
+    assert np.all(st.b_rows < st.nbx)  # fill on primal rows: diagonal R path
     dx = np.zeros(n)
-    dx[rng.choice(n, 4, replace=False)] = 10.0 ** rng.uniform(-6, 6, 4)   # a few active bounds
+    dx[rng.choice(n, 4, replace=False)] = 10.0 ** rng.uniform(-6, 6, 4)  # a few active bounds
     dc = np.zeros(m)
     A, B = kkt.assemble(st, jnp.asarray(hv), jnp.asarray(jv), jnp.asarray(dx), jnp.asarray(dc))
     K = sparse_kkt(n, m, hr, hc, hv, jr, jc, jv, dx, dc)
@@ -250,13 +254,13 @@ def test_indefinite_state_hessian_fast_path_and_fallback(q_curv):
     correct = int(np.sum(ev > 0)) == n
     assert bool(kkt.inertia_ok(st, fac)) == correct
     if q_curv == -0.5:
-        assert correct and np.sum(paths[1:] == 0) >= S - 2   # (nearly) every scanned block on the fast path
+        assert correct and np.sum(paths[1:] == 0) >= S - 2  # (nearly) every scanned block on the fast path
         # ... which the plain quasi-definite test (gamma = 0) would not give: P is indefinite
         d = kkt.equilibrate(A, B)
         As, _ = kkt.scale_blocks(A, B, d)
-        assert np.all(np.isnan(np.asarray(jnp.linalg.cholesky(As[1:, :st.nbx, :st.nbx]))[:, -1, -1]))
+        assert np.all(np.isnan(np.asarray(jnp.linalg.cholesky(As[1:, : st.nbx, : st.nbx]))[:, -1, -1]))
     else:
-        assert not correct and np.any(paths == 2)          # eigh fallback exercised
+        assert not correct and np.any(paths == 2)  # eigh fallback exercised
     r = rng.standard_normal(n + m)
     ux, uc = kkt.solve(st, fac, A, B, jnp.asarray(r[:n]), jnp.asarray(r[n:]))
     np.testing.assert_allclose(np.concatenate([ux, uc]), spla.spsolve(K, r), rtol=1e-8, atol=1e-8)
@@ -289,7 +293,7 @@ def test_vmapped_factor_matches_members_with_mixed_pivot_paths():
     hvs = [np.where(is_q, q_curv, kind) * rng.uniform(0.5, 1.5, n) for q_curv in (-0.5, -40.0, 0.7)]
     A, B = jax.vmap(lambda hv: kkt.assemble(st, hv, jnp.asarray(jv), dx, dc))(jnp.asarray(np.stack(hvs)))
     r = jnp.asarray(rng.standard_normal(n + m))
-    solve = lambda A_, B_: kkt.solve(st, kkt.factor(st, A_, B_), A_, B_, r[:n], r[n:])   # noqa: E731
+    solve = lambda A_, B_: kkt.solve(st, kkt.factor(st, A_, B_), A_, B_, r[:n], r[n:])  # noqa: E731
     for sel in (np.array([0, 1]), np.array([0, 2])):
         fb = jax.vmap(lambda A_, B_: kkt.factor(st, A_, B_))(A[sel], B[sel])
         pb = np.asarray(jax.vmap(lambda A_, B_: kkt.pivot_paths(st, A_, B_))(A[sel], B[sel]))
@@ -300,7 +304,7 @@ def test_vmapped_factor_matches_members_with_mixed_pivot_paths():
             np.testing.assert_array_equal(pb[j], np.asarray(kkt.pivot_paths(st, A[i], B[i])))
             u1 = solve(A[i], B[i])
             np.testing.assert_allclose(np.concatenate([ub[0][j], ub[1][j]]), np.concatenate(u1), rtol=1e-10, atol=1e-12)
-        if sel[1] == 1:                                   # the fallback member: more blocks on eigh
+        if sel[1] == 1:  # the fallback member: more blocks on eigh
             assert np.sum(pb[1] == 2) > np.sum(pb[0] == 2)
 
 
@@ -345,9 +349,22 @@ def test_structure_of_a_tiny_staged_nlp():
 
 def test_structure_is_cached_in_the_nlp():
     n, m, vs, cs, hr, hc, jr, jc = tiny_staged_nlp_pattern()
-    fn = lambda *a: None                                       # never evaluated
-    nlp = NLP(n=n, m=m, f=fn, g=fn, grad=fn, jac_values=fn, hess_values=fn, jac_rows=jr, jac_cols=jc,
-              hess_rows=hr, hess_cols=hc, var_stage=vs, con_stage=cs)
+    fn = lambda *a: None  # never evaluated
+    nlp = NLP(
+        n=n,
+        m=m,
+        f=fn,
+        g=fn,
+        grad=fn,
+        jac_values=fn,
+        hess_values=fn,
+        jac_rows=jr,
+        jac_cols=jc,
+        hess_rows=hr,
+        hess_cols=hc,
+        var_stage=vs,
+        con_stage=cs,
+    )
     st = kkt.structure_of(nlp)
     assert kkt.structure_of(nlp) is st and st in nlp.cache.values()
     assert not hasattr(nlp, "_kkt_structure_cache")
@@ -378,9 +395,8 @@ def test_quasidefinite_pivot_certifies_an_indefinite_primal_block():
     assert (np.sum(ev > 0), np.sum(ev < 0)) == (nbx, nc)
     N, ok = pivot.quasidefinite_block(jnp.asarray(D), nbx)
     assert bool(ok)
-    np.testing.assert_allclose(inverse_of(N, np.r_[np.ones(nbx), -np.ones(nc)]), np.linalg.inv(D),
-                               rtol=1e-9, atol=1e-9)
-    _, ok0 = pivot.quasidefinite_block(jnp.asarray(D), nbx, gamma=0.0)    # plain test: P indefinite
+    np.testing.assert_allclose(inverse_of(N, np.r_[np.ones(nbx), -np.ones(nc)]), np.linalg.inv(D), rtol=1e-9, atol=1e-9)
+    _, ok0 = pivot.quasidefinite_block(jnp.asarray(D), nbx, gamma=0.0)  # plain test: P indefinite
     assert not bool(ok0)
     Nk, sgn, info = pivot.pivot(jnp.asarray(D), nbx, True, 1e-12)
     np.testing.assert_array_equal(np.asarray(info), [nc, 0, 0])
@@ -412,13 +428,13 @@ def test_eigen_pivot_counts_signs_and_zeros():
     D = U @ np.diag([3.0, -2.0, 0.0, 1e-3]) @ U.T
     _, _, info = pivot.eigen_pivot(jnp.asarray(D), 1e-10)
     np.testing.assert_array_equal(np.asarray(info), [1, 1, 2])
-    D[2, 2] += 0.5                                              # nonsingular: an exact inverse
+    D[2, 2] += 0.5  # nonsingular: an exact inverse
     ev = np.linalg.eigvalsh(D)
     N, sgn, info = pivot.eigen_pivot(jnp.asarray(D), 1e-10)
     np.testing.assert_array_equal(np.asarray(info), [np.sum(ev < 0), 0, 2])
     np.testing.assert_allclose(inverse_of(N, sgn), np.linalg.inv(D), rtol=1e-10, atol=1e-10)
     _, _, info = pivot.eigen_pivot(jnp.asarray(np.where(np.eye(4) > 0, np.nan, D)), 1e-10)
-    np.testing.assert_array_equal(np.asarray(info), [0, 4, 2])   # non-finite: all zero
+    np.testing.assert_array_equal(np.asarray(info), [0, 4, 2])  # non-finite: all zero
     # a block without inertia (nbx, nc, 0) leaves the fast path for the eigendecomposition
     Dw = np.diag([1.0, 1.0, 1.0, -1.0])
     _, sgn, info = pivot.pivot(jnp.asarray(Dw), 2, True, 1e-10)
@@ -431,7 +447,7 @@ def test_refinement_meets_the_residual_ratio_and_reports_the_residual():
     n, m, vs, cs, hr, hc, jr, jc = random_staged_pattern(rng, 6, 4, 3)
     st = kkt.build_structure(n, m, vs, cs, hr, hc, jr, jc)
     hv, jv = rng.standard_normal(hr.size), rng.standard_normal(jr.size)
-    dx = 10.0 ** rng.uniform(-6, 6, n)                         # graded barrier terms
+    dx = 10.0 ** rng.uniform(-6, 6, n)  # graded barrier terms
     dc = -(10.0 ** rng.uniform(-8, -2, m))
     A, B = kkt.assemble(st, jnp.asarray(hv), jnp.asarray(jv), jnp.asarray(dx), jnp.asarray(dc))
     fac = kkt.factor(st, A, B)
@@ -451,8 +467,9 @@ def test_refinement_meets_the_residual_ratio_and_reports_the_residual():
     # no refinement: one plain block solve
     px, pc = kkt.solve(st, fac, A, B, rx, rc, min_steps=0, max_steps=0)
     plain = kkt.solve_vec(st, fac, kkt.border_coupling(st, fac, B), r_blk)
-    np.testing.assert_allclose(np.concatenate([px, pc]), np.concatenate(kkt.from_blocks(st, plain)),
-                               rtol=1e-12, atol=1e-14 * np.max(np.abs(u)))
+    np.testing.assert_allclose(
+        np.concatenate([px, pc]), np.concatenate(kkt.from_blocks(st, plain)), rtol=1e-12, atol=1e-14 * np.max(np.abs(u))
+    )
 
 
 def test_block_products_and_compact_equilibration():

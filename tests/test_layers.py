@@ -85,7 +85,7 @@ def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
         stack.append(node)
         for dep in sorted(graph.get(node, ())):
             if state.get(dep) == 1:
-                cyc = stack[stack.index(dep):]
+                cyc = stack[stack.index(dep) :]
                 i = cyc.index(min(cyc))
                 found.append(cyc[i:] + cyc[:i])
             elif dep not in state:

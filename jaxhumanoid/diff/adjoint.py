@@ -55,9 +55,15 @@ class KKTPoint(NamedTuple):
 
 def warm_start(result, p) -> KKTPoint:
     """The ``KKTPoint`` of an ``NLPResult`` solved at parameters ``p``."""
-    return KKTPoint(x=np.asarray(result.x), lam_g=np.asarray(result.lam_g), z_l=np.asarray(result.z_l),
-                    z_u=np.asarray(result.z_u), p=p, iterations=np.int64(result.iterations),
-                    success=np.bool_(result.success))
+    return KKTPoint(
+        x=np.asarray(result.x),
+        lam_g=np.asarray(result.lam_g),
+        z_l=np.asarray(result.z_l),
+        z_u=np.asarray(result.z_u),
+        p=p,
+        iterations=np.int64(result.iterations),
+        success=np.bool_(result.success),
+    )
 
 
 def _ipm_core(nlp, options):
@@ -96,8 +102,14 @@ def _ipopt_forward(problem, options, strict: bool, max_rel_step):
     return forward
 
 
-def make_solve(problem, solver: str = "ipopt", options: dict | None = None, sc_tol: float = 1e-6,
-               strict: bool = False, max_rel_step: float | None = None):
+def make_solve(
+    problem,
+    solver: str = "ipopt",
+    options: dict | None = None,
+    sc_tol: float = 1e-6,
+    strict: bool = False,
+    max_rel_step: float | None = None,
+):
     """``solve(p, warm=None) -> (x*, KKTPoint)``, differentiable in p by ``jax.custom_vjp``
     (reverse mode: ``jax.grad``/``jax.vjp`` of losses of x*, also as ``KKTPoint.x``; cotangents of
     the multipliers are ignored).
@@ -155,8 +167,9 @@ def make_solve(problem, solver: str = "ipopt", options: dict | None = None, sc_t
         (x, lam, zl, zu), p, warm = saved
         # the NLP's values are evaluated here, so that the callback itself makes no JAX call
         values = kkt_values(nlp, x, lam, p)
-        v_x, v_lam = jax.pure_callback(host_adjoint, (vec(n), vec(m)), x, lam, zl, zu, p, values, cts[0],
-                                       vmap_method="sequential")
+        v_x, v_lam = jax.pure_callback(
+            host_adjoint, (vec(n), vec(m)), x, lam, zl, zu, p, values, cts[0], vmap_method="sequential"
+        )
         dp = jax.tree.map(lambda a: -a, pullback(x, lam, p, v_x, v_lam))
         return dp, jax.tree.map(jnp.zeros_like, warm)
 

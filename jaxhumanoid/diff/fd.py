@@ -47,8 +47,10 @@ def param_direction(p, group: str, seed: int = 0):
         moved = {name: rel(getattr(mdl, name)) for name in MODEL_GROUP_FIELDS}
         # a tangent is rebuilt by unflattening (the leaves are the fields in order): zero masses
         # would not pass the model's constructor
-        leaves = [moved.get(f.name, np.zeros_like(np.asarray(getattr(mdl, f.name), dtype=float)))
-                  for f in dataclasses.fields(mdl)]
+        leaves = [
+            moved.get(f.name, np.zeros_like(np.asarray(getattr(mdl, f.name), dtype=float)))
+            for f in dataclasses.fields(mdl)
+        ]
         return dataclasses.replace(dp, model=jax.tree.unflatten(jax.tree.structure(mdl), leaves))
     if group == "horizon":
         return dataclasses.replace(dp, T=rel(p.T))
@@ -87,8 +89,10 @@ def mutation_errors(problem, result, kkt, dp, dx_fd) -> dict:
     the check's tolerance must reject them (a wrong sign, a missed active set, multipliers read
     with the opposite sign convention)."""
     out = {"wrong_sign": rel_err(-kkt.jvp(dp), dx_fd)}
-    for name, kw in (("missed_active_set", {"active": missed_active_set(kkt.active)}),
-                     ("flipped_multipliers", {"lam_g": -np.asarray(result.lam_g)})):
+    for name, kw in (
+        ("missed_active_set", {"active": missed_active_set(kkt.active)}),
+        ("flipped_multipliers", {"lam_g": -np.asarray(result.lam_g)}),
+    ):
         try:
             out[name] = rel_err(KKTSensitivity(problem, result, warn=False, **kw).jvp(dp), dx_fd)
         except np.linalg.LinAlgError:
@@ -112,8 +116,9 @@ def _group_row(prob, res, kkt, group: str, seed: int, eps: float) -> tuple[dict,
     t_jvp = time.perf_counter() - t0
     dx_fd, dV_fd, rr = fd_directional(prob, res, dp, dgoal, eps=eps)
     g_env = kkt.objective_gradient(goal=True)
-    dV_env = ((tree_vdot(g_env[0], dp) if dp is not None else 0.0)
-              + (float(g_env[1] @ dgoal) if dgoal is not None else 0.0))
+    dV_env = (tree_vdot(g_env[0], dp) if dp is not None else 0.0) + (
+        float(g_env[1] @ dgoal) if dgoal is not None else 0.0
+    )
     dV_chain = kkt.objective_jvp(dp, dgoal, dx=dx)
     row = {
         "group": group,
@@ -145,7 +150,8 @@ def _cost(res, kkt, rows, ct, t_factor: float) -> dict:
     t_iter = res.solve_time_s / max(res.iterations, 1)
     t_jvp = float(np.median([r["jvp_time_s"] for r in rows]))
     c = {
-        "cold_solve_time_s": res.solve_time_s, "cold_solve_iters": res.iterations,
+        "cold_solve_time_s": res.solve_time_s,
+        "cold_solve_iters": res.iterations,
         "time_per_solver_iteration_s": t_iter,
         "factorisation_time_s": t_factor,
         "jvp_time_s (after factorisation)": t_jvp,
@@ -164,18 +170,32 @@ def _cost(res, kkt, rows, ct, t_factor: float) -> dict:
 
 def _print_check(out: dict, prob, kkt) -> None:
     print(f"{out['task']} {out['scheme']} N={out['N']}: n={prob.nlp.n} m={prob.nlp.m}; active set {kkt.report()}")
-    print(f"{'group':>8} {'|dx|':>10} {'err dx 2n':>10} {'err dx inf':>10} {'dV env':>14} {'dV chain':>14} "
-          f"{'dV fd':>14} {'err env/fd':>10}")
+    print(
+        f"{'group':>8} {'|dx|':>10} {'err dx 2n':>10} {'err dx inf':>10} {'dV env':>14} {'dV chain':>14} "
+        f"{'dV fd':>14} {'err env/fd':>10}"
+    )
     for r in out["rows"]:
-        print(f"{r['group']:>8} {r['norm_dx']:10.3e} {r['rel_err_dx_2norm']:10.2e} {r['rel_err_dx_maxnorm']:10.2e} "
-              f"{r['dV_envelope']:14.8e} {r['dV_chain']:14.8e} {r['dV_fd']:14.8e} {r['rel_err_dV_env_fd']:10.2e}")
+        print(
+            f"{r['group']:>8} {r['norm_dx']:10.3e} {r['rel_err_dx_2norm']:10.2e} {r['rel_err_dx_maxnorm']:10.2e} "
+            f"{r['dV_envelope']:14.8e} {r['dV_chain']:14.8e} {r['dV_fd']:14.8e} {r['rel_err_dV_env_fd']:10.2e}"
+        )
     print(f"  mutations (weights, must exceed {FD_TOL:g}): {out['mutations_weights_rel_err_dx']}")
     for k, v in out["cost"].items():
         print(f"  {k}: {v:.4g}")
 
 
-def check_against_fd(task="T1", scheme="A,F+C,1S", N=15, T=5.0, eps=1e-5, seed=1, groups=GROUPS + ("goal",),
-                     verbose=True, problem=None, result=None) -> dict:
+def check_against_fd(
+    task="T1",
+    scheme="A,F+C,1S",
+    N=15,
+    T=5.0,
+    eps=1e-5,
+    seed=1,
+    groups=GROUPS + ("goal",),
+    verbose=True,
+    problem=None,
+    result=None,
+) -> dict:
     """Directional derivatives of x* and V* against central differences of warm re-solves, and
     the cost of a sensitivity relative to a solve. Returns a JSON-able dict.
 
@@ -198,8 +218,13 @@ def check_against_fd(task="T1", scheme="A,F+C,1S", N=15, T=5.0, eps=1e-5, seed=1
             mutations = mutation_errors(prob, res, kkt, dp, dx_fd)
     ct = np.random.default_rng(seed).normal(size=prob.nlp.n)
     out = {
-        "task": prob.task.key, "scheme": str(prob.scheme),
-        "N": prob.layout.N, "n": prob.nlp.n, "m": prob.nlp.m, "eps": eps, "tol": FD_TOL,
+        "task": prob.task.key,
+        "scheme": str(prob.scheme),
+        "N": prob.layout.N,
+        "n": prob.nlp.n,
+        "m": prob.nlp.m,
+        "eps": eps,
+        "tol": FD_TOL,
         "objective": res.objective,
         "active_set": kkt.report(),
         "rows": rows,
@@ -218,15 +243,26 @@ def table_rows(out: dict, tol: float = FD_TOL) -> list[dict]:
     case = f"{out['task']} {out['scheme']} N={out['N']}"
     rows = []
     for r in out["rows"]:
-        for quantity, value in ((f"dx* {r['group']}", r["rel_err_dx_2norm"]),
-                                (f"dV* {r['group']}", r["rel_err_dV_env_fd"])):
-            rows.append({"case": case, "check": "sensitivity vs FD", "quantity": quantity, "value": float(value),
-                         "tol": tol, "ok": bool(np.isfinite(value) and value <= tol)})
+        for quantity, value in (
+            (f"dx* {r['group']}", r["rel_err_dx_2norm"]),
+            (f"dV* {r['group']}", r["rel_err_dV_env_fd"]),
+        ):
+            rows.append(
+                {
+                    "case": case,
+                    "check": "sensitivity vs FD",
+                    "quantity": quantity,
+                    "value": float(value),
+                    "tol": tol,
+                    "ok": bool(np.isfinite(value) and value <= tol),
+                }
+            )
     return rows
 
 
-def sensitivity_table(tasks=("T1", "T2", "T3", "T4"), scheme="A,F+C,1S", N=15, T=5.0, eps=1e-5, seed=1,
-                      verbose=False) -> tuple[list[dict], list[dict]]:
+def sensitivity_table(
+    tasks=("T1", "T2", "T3", "T4"), scheme="A,F+C,1S", N=15, T=5.0, eps=1e-5, seed=1, verbose=False
+) -> tuple[list[dict], list[dict]]:
     """``check_against_fd`` on each task: (table rows, full results) for ``jaxhumanoid check
     --sensitivities``. A task whose solves fail, or whose reduced KKT matrix is singular, gives
     one failing row (the message under ``"error"``)."""
@@ -235,9 +271,17 @@ def sensitivity_table(tasks=("T1", "T2", "T3", "T4"), scheme="A,F+C,1S", N=15, T
         try:
             out = check_against_fd(task, scheme, N, T=T, eps=eps, seed=seed, verbose=verbose)
         except (RuntimeError, np.linalg.LinAlgError) as err:  # a failed solve or a singular reduced KKT matrix
-            rows.append({"case": f"{task} {scheme} N={N}", "check": "sensitivity vs FD",
-                         "quantity": f"failed ({type(err).__name__})", "value": float("inf"), "tol": FD_TOL,
-                         "ok": False, "error": str(err)})
+            rows.append(
+                {
+                    "case": f"{task} {scheme} N={N}",
+                    "check": "sensitivity vs FD",
+                    "quantity": f"failed ({type(err).__name__})",
+                    "value": float("inf"),
+                    "tol": FD_TOL,
+                    "ok": False,
+                    "error": str(err),
+                }
+            )
             continue
         outs.append(out)
         rows += table_rows(out)

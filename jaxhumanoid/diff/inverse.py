@@ -7,10 +7,9 @@ continued along the data's branch of local optima (``continuation_solve``).
 
 from __future__ import annotations
 
-from typing import Any
-
 import dataclasses
 import time
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -73,8 +72,16 @@ class WeightFit:
     not the cause: on T2 and T3 it equals the data's branch continued from the true weights.
     """
 
-    def __init__(self, problem, x_data, w_init, free=FREE_WEIGHTS, max_rel_step: float = 0.25,
-                 options: dict | None = None, verbose: bool = False):
+    def __init__(
+        self,
+        problem,
+        x_data,
+        w_init,
+        free=FREE_WEIGHTS,
+        max_rel_step: float = 0.25,
+        options: dict | None = None,
+        verbose: bool = False,
+    ):
         self.problem = problem
         self.x_data = np.asarray(x_data, dtype=float)
         if self.x_data.shape != (problem.nlp.n,):
@@ -142,8 +149,9 @@ class WeightFit:
         _, _, p_from, res_from = self._best
         p = self.params(theta)
         t0 = time.perf_counter()
-        res = continuation_solve(self.problem, p_from, res_from, p, max_rel_step=self.max_rel_step,
-                                 options=self.options)
+        res = continuation_solve(
+            self.problem, p_from, res_from, p, max_rel_step=self.max_rel_step, options=self.options
+        )
         if not res.success:
             raise RuntimeError(f"WeightFit: solve at w = {self.weights(theta)} returned {res.status}")
         self._record(theta, p, res, time.perf_counter() - t0)
@@ -159,7 +167,7 @@ class WeightFit:
         kkt = KKTSensitivity(self.problem, res, p=p)
         w = self.weights(theta)
         cols = []
-        for j, i in enumerate(self.free):
+        for i in self.free:
             dw = np.zeros(8)
             dw[i] = w[i]  # d w_i / d theta_j
             cols.append(kkt.jvp(dataclasses.replace(zeros_like_params(p), weights=dw)) / self.scale)
@@ -167,8 +175,9 @@ class WeightFit:
         self.stats["sensitivity_wall_s"] += time.perf_counter() - t0
         return np.stack(cols, axis=1)
 
-    def gauss_newton(self, theta0=None, max_evals: int = 30, max_step: float = 1.0, tol: float = 1e-12,
-                     xtol: float = 1e-9):
+    def gauss_newton(
+        self, theta0=None, max_evals: int = 30, max_step: float = 1.0, tol: float = 1e-12, xtol: float = 1e-9
+    ):
         """Levenberg-Marquardt-damped Gauss-Newton, steps clipped to ||dtheta||_inf <= max_step
         (a factor e per weight: long steps make the continuation expensive). Stops when the
         step falls below ``xtol`` (further steps only chase IPOPT's tolerance), when an accepted
@@ -244,8 +253,13 @@ class WeightFit:
             self._record(theta, self.params(theta), point, t1 - t0)
             return float(val), np.asarray(g, dtype=float)
 
-        sol = optimize.minimize(fg, np.zeros_like(theta0), jac=True, method="L-BFGS-B",
-                                options={"maxfun": max_evals, "ftol": 1e-15, "gtol": 1e-12})
+        sol = optimize.minimize(
+            fg,
+            np.zeros_like(theta0),
+            jac=True,
+            method="L-BFGS-B",
+            options={"maxfun": max_evals, "ftol": 1e-15, "gtol": 1e-12},
+        )
         self.stats["lbfgs_message"] = str(sol.message)
         return theta_of(np.asarray(sol.x, dtype=float))
 

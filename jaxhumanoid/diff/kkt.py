@@ -125,9 +125,23 @@ class KKTSensitivity:
     keeps p with numpy leaves.
     """
 
-    def __init__(self, problem, result=None, *, x=None, lam_g=None, z_l=None, z_u=None, p=None, bounds=None,
-                 sc_tol: float = 1e-6, warn: bool = True, active: ActiveSet | None = None, dep_tol: float = 1e-9,
-                 values: KKTValues | None = None):
+    def __init__(
+        self,
+        problem,
+        result=None,
+        *,
+        x=None,
+        lam_g=None,
+        z_l=None,
+        z_u=None,
+        p=None,
+        bounds=None,
+        sc_tol: float = 1e-6,
+        warn: bool = True,
+        active: ActiveSet | None = None,
+        dep_tol: float = 1e-9,
+        values: KKTValues | None = None,
+    ):
         t0 = time.perf_counter()
         self.problem = problem
         nlp = self.nlp = problem.nlp
@@ -141,9 +155,21 @@ class KKTSensitivity:
         self.fns = lagrangian_fns(nlp)
         vals = kkt_values(nlp, self.x, self.lam, self.p) if values is None else values
         self.g_val = np.asarray(vals.g)
-        self.active = active if active is not None else identify_active_set(
-            self.bounds, self.x, self.g_val, self.lam, self.z_l, self.z_u, sc_tol=sc_tol, warn=warn,
-            ignore_bounds=implied_bounds(problem))
+        self.active = (
+            active
+            if active is not None
+            else identify_active_set(
+                self.bounds,
+                self.x,
+                self.g_val,
+                self.lam,
+                self.z_l,
+                self.z_u,
+                sc_tol=sc_tol,
+                warn=warn,
+                ignore_bounds=implied_bounds(problem),
+            )
+        )
         J, H = self.J, self.H = _sparse_derivatives(nlp, vals)
         self.F = np.flatnonzero(self.active.free)
         self.B = np.flatnonzero(self.active.fixed)
@@ -250,9 +276,14 @@ class KKTSensitivity:
         return float(self.fns.f_jvp(self.x, self.p, jnp.asarray(dx), dpp))
 
     def report(self) -> dict:
-        return {**self.active.summary(), "n_dependent_dropped": int(self.dropped.size), "n_free": int(self.F.size),
-                "kkt_size": int(self.K.shape[0]), "stationarity": self.stationarity,
-                "factor_time_s": self.factor_time_s}
+        return {
+            **self.active.summary(),
+            "n_dependent_dropped": int(self.dropped.size),
+            "n_free": int(self.F.size),
+            "kkt_size": int(self.K.shape[0]),
+            "stationarity": self.stationarity,
+            "factor_time_s": self.factor_time_s,
+        }
 
 
 def solution_jvp(problem, result, dp, dgoal=None, **kw) -> np.ndarray:

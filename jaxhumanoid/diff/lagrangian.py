@@ -7,7 +7,8 @@ on p). Every function is a ``jax.jit`` closure over one NLP, kept in ``nlp.cache
 
 from __future__ import annotations
 
-from typing import Callable, NamedTuple
+from collections.abc import Callable
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp

@@ -48,8 +48,9 @@ def resolve_robust(problem, p=None, bounds=None, warm=None, options: dict | None
     parameter changes), then a cold start. Returns the first successful result (or the last)."""
     tries = [dict(options or {})]
     if warm is not None:
-        tries.append({**(options or {}), "mu_init": 1e-4, "warm_start_bound_push": 1e-6,
-                      "warm_start_mult_bound_push": 1e-6})
+        tries.append(
+            {**(options or {}), "mu_init": 1e-4, "warm_start_bound_push": 1e-6, "warm_start_mult_bound_push": 1e-6}
+        )
     res = None
     for opts in tries:
         res = resolve(problem, p=p, bounds=bounds, warm=warm, options=opts)
@@ -97,8 +98,9 @@ def _substeps(a, b, max_rel_step: float) -> float:
     return float(np.max(np.where(same, geo, lin), initial=0.0))
 
 
-def continuation_solve(problem, p_from, res_from, p_to, max_rel_step: float = 0.25, bounds=None,
-                       options: dict | None = None):
+def continuation_solve(
+    problem, p_from, res_from, p_to, max_rel_step: float = 0.25, bounds=None, options: dict | None = None
+):
     """Follow the branch of local optima through ``res_from`` (at ``p_from``) to ``p_to``.
 
     The OCP has several local optima; a warm start after a long parameter step can land on
@@ -114,8 +116,11 @@ def continuation_solve(problem, p_from, res_from, p_to, max_rel_step: float = 0.
     treedef = jax.tree.structure(p_from)
     res = res_from
     for i in range(1, k + 1):
-        p_i = p_to if i == k else jax.tree.unflatten(
-            treedef, [_interpolate(a, b, i / k) for a, b in zip(leaves_a, leaves_b)])
+        p_i = (
+            p_to
+            if i == k
+            else jax.tree.unflatten(treedef, [_interpolate(a, b, i / k) for a, b in zip(leaves_a, leaves_b)])
+        )
         res = resolve_robust(problem, p=p_i, bounds=bounds, warm=res, options=options)
         if not res.success:
             break

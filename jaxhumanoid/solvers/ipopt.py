@@ -68,7 +68,20 @@ class _Callbacks:
         self._pairs = {"fg": jitted.fg, "dj": jitted.grad_jac}
         self._hess = jitted.hess
         self._cache: dict = {}
-        self.history: dict[str, list] = {k: [] for k in ("objective", "inf_pr", "inf_du", "mu", "d_norm", "regularization", "alpha_du", "alpha_pr", "ls_trials")}
+        self.history: dict[str, list] = {
+            k: []
+            for k in (
+                "objective",
+                "inf_pr",
+                "inf_du",
+                "mu",
+                "d_norm",
+                "regularization",
+                "alpha_du",
+                "alpha_pr",
+                "ls_trials",
+            )
+        }
         self.eval_time = 0.0
         self.eval_calls = 0
 
@@ -105,8 +118,23 @@ class _Callbacks:
             "new_point": self.new_point,
         }
 
-    def intermediate(self, alg_mod, iter_count, obj_value, inf_pr, inf_du, mu, d_norm, regularization_size, alpha_du, alpha_pr, ls_trials):
-        for key, val in zip(self.history, (obj_value, inf_pr, inf_du, mu, d_norm, regularization_size, alpha_du, alpha_pr, ls_trials)):
+    def intermediate(
+        self,
+        alg_mod,
+        iter_count,
+        obj_value,
+        inf_pr,
+        inf_du,
+        mu,
+        d_norm,
+        regularization_size,
+        alpha_du,
+        alpha_pr,
+        ls_trials,
+    ):
+        for key, val in zip(
+            self.history, (obj_value, inf_pr, inf_du, mu, d_norm, regularization_size, alpha_du, alpha_pr, ls_trials)
+        ):
             self.history[key].append(val)
 
 
@@ -116,7 +144,13 @@ def _finite_or_inf(a, sign):
 
 
 def solve_ipopt(
-    nlp: NLP, p, bounds: Bounds, x0=None, options: dict | None = None, verbose: bool = False, warm: NLPResult | None = None
+    nlp: NLP,
+    p,
+    bounds: Bounds,
+    x0=None,
+    options: dict | None = None,
+    verbose: bool = False,
+    warm: NLPResult | None = None,
 ) -> NLPResult:
     """Solve ``nlp`` at parameters ``p`` with IPOPT (exact Hessian, MUMPS by default).
 
@@ -138,8 +172,18 @@ def solve_ipopt(
     with captured_log(opts) as log:
         t0 = time.perf_counter()
         code, x, g_val, obj, lam_g, z_l, z_u = ipopt_capi.solve(
-            nlp.n, nlp.m, _finite_or_inf(bounds.xl, -1), _finite_or_inf(bounds.xu, 1), _finite_or_inf(bounds.gl, -1), _finite_or_inf(bounds.gu, 1),
-            (nlp.jac_rows, nlp.jac_cols), (nlp.hess_rows, nlp.hess_cols), cb.functions(), opts, x0, **mults,
+            nlp.n,
+            nlp.m,
+            _finite_or_inf(bounds.xl, -1),
+            _finite_or_inf(bounds.xu, 1),
+            _finite_or_inf(bounds.gl, -1),
+            _finite_or_inf(bounds.gu, 1),
+            (nlp.jac_rows, nlp.jac_cols),
+            (nlp.hess_rows, nlp.hess_cols),
+            cb.functions(),
+            opts,
+            x0,
+            **mults,
         )
         solve_time = time.perf_counter() - t0
     if verbose:
@@ -157,7 +201,11 @@ def solve_ipopt(
         compile_time_s=compile_time,
         objective=obj,
         max_constraint_violation=constraint_violation(g_val, x, bounds.gl, bounds.gu, bounds.xl, bounds.xu),
-        history={**{k: np.asarray(v) for k, v in cb.history.items()}, "eval_time_s": cb.eval_time, "eval_calls": cb.eval_calls},
+        history={
+            **{k: np.asarray(v) for k, v in cb.history.items()},
+            "eval_time_s": cb.eval_time,
+            "eval_calls": cb.eval_calls,
+        },
         log=log["text"],
     )
 
@@ -173,19 +221,45 @@ def solve_cyipopt_reference(nlp: NLP, p, bounds: Bounds, x0=None, options: dict 
     x0 = np.asarray(bounds.x0 if x0 is None else x0, dtype=float)
 
     class _Problem:
-        def objective(self, x): return float(f(x, p))
-        def gradient(self, x): return np.asarray(grad(x, p))
-        def constraints(self, x): return np.asarray(g(x, p))
-        def jacobian(self, x): return np.asarray(jac(x, p))
-        def jacobianstructure(self): return nlp.jac_rows, nlp.jac_cols
-        def hessian(self, x, lam, sigma): return np.asarray(hess(x, lam, sigma, p))
-        def hessianstructure(self): return nlp.hess_rows, nlp.hess_cols
+        def objective(self, x):
+            return float(f(x, p))
+
+        def gradient(self, x):
+            return np.asarray(grad(x, p))
+
+        def constraints(self, x):
+            return np.asarray(g(x, p))
+
+        def jacobian(self, x):
+            return np.asarray(jac(x, p))
+
+        def jacobianstructure(self):
+            return nlp.jac_rows, nlp.jac_cols
+
+        def hessian(self, x, lam, sigma):
+            return np.asarray(hess(x, lam, sigma, p))
+
+        def hessianstructure(self):
+            return nlp.hess_rows, nlp.hess_cols
 
     obj = _Problem()
-    for out in (obj.objective(x0), obj.constraints(x0), obj.gradient(x0), obj.jacobian(x0), obj.hessian(x0, np.ones(nlp.m), 1.0)):
+    for out in (
+        obj.objective(x0),
+        obj.constraints(x0),
+        obj.gradient(x0),
+        obj.jacobian(x0),
+        obj.hessian(x0, np.ones(nlp.m), 1.0),
+    ):
         jax.block_until_ready(out)
-    prob = cyipopt.Problem(n=nlp.n, m=nlp.m, problem_obj=obj, lb=_finite_or_inf(bounds.xl, -1), ub=_finite_or_inf(bounds.xu, 1),
-                           cl=_finite_or_inf(bounds.gl, -1), cu=_finite_or_inf(bounds.gu, 1))
+    prob = cyipopt.Problem(
+        n=nlp.n,
+        m=nlp.m,
+        problem_obj=obj,
+        lb=_finite_or_inf(bounds.xl, -1),
+        ub=_finite_or_inf(bounds.xu, 1),
+        cl=_finite_or_inf(bounds.gl, -1),
+        cu=_finite_or_inf(bounds.gu, 1),
+    )
     for key, val in {**DEFAULT_OPTIONS, "file_print_level": 0, **(options or {})}.items():
         prob.add_option(key, val)
     t0 = time.perf_counter()

@@ -36,14 +36,31 @@ EVAL_F = _cb(ctypes.c_bool, _idx, _P_NUM, ctypes.c_bool, _P_NUM, ctypes.c_void_p
 EVAL_GRAD_F = _cb(ctypes.c_bool, _idx, _P_NUM, ctypes.c_bool, _P_NUM, ctypes.c_void_p)
 EVAL_G = _cb(ctypes.c_bool, _idx, _P_NUM, ctypes.c_bool, _idx, _P_NUM, ctypes.c_void_p)
 EVAL_JAC_G = _cb(ctypes.c_bool, _idx, _P_NUM, ctypes.c_bool, _idx, _idx, _P_IDX, _P_IDX, _P_NUM, ctypes.c_void_p)
-EVAL_H = _cb(ctypes.c_bool, _idx, _P_NUM, ctypes.c_bool, _num, _idx, _P_NUM, ctypes.c_bool, _idx, _P_IDX, _P_IDX, _P_NUM, ctypes.c_void_p)
+EVAL_H = _cb(
+    ctypes.c_bool,
+    _idx,
+    _P_NUM,
+    ctypes.c_bool,
+    _num,
+    _idx,
+    _P_NUM,
+    ctypes.c_bool,
+    _idx,
+    _P_IDX,
+    _P_IDX,
+    _P_NUM,
+    ctypes.c_void_p,
+)
 INTERMEDIATE = _cb(ctypes.c_bool, _idx, _idx, _num, _num, _num, _num, _num, _num, _num, _num, _idx, ctypes.c_void_p)
 
 
 def _library_path() -> str:
     # the cyipopt wheel ships libipopt next to itself
     site = os.path.dirname(os.path.dirname(os.path.abspath(cyipopt.__file__)))
-    found = sorted(glob.glob(os.path.join(site, "cyipopt*.libs", "libipopt*.so*")) + glob.glob(os.path.join(site, "cyipopt*", ".dylibs", "libipopt*.dylib")))
+    found = sorted(
+        glob.glob(os.path.join(site, "cyipopt*.libs", "libipopt*.so*"))
+        + glob.glob(os.path.join(site, "cyipopt*", ".dylibs", "libipopt*.dylib"))
+    )
     if not found and os.path.exists("/proc/self/maps"):  # a cyipopt built against a system IPOPT
         with open("/proc/self/maps") as fh:
             found = sorted({line.split()[-1] for line in fh if "libipopt" in line})
@@ -56,10 +73,29 @@ def _library_path() -> str:
 def library() -> ctypes.CDLL:
     lib = ctypes.CDLL(_library_path())
     lib.CreateIpoptProblem.restype = ctypes.c_void_p
-    lib.CreateIpoptProblem.argtypes = [_idx, _P_NUM, _P_NUM, _idx, _P_NUM, _P_NUM, _idx, _idx, _idx, EVAL_F, EVAL_G, EVAL_GRAD_F, EVAL_JAC_G, EVAL_H]
+    lib.CreateIpoptProblem.argtypes = [
+        _idx,
+        _P_NUM,
+        _P_NUM,
+        _idx,
+        _P_NUM,
+        _P_NUM,
+        _idx,
+        _idx,
+        _idx,
+        EVAL_F,
+        EVAL_G,
+        EVAL_GRAD_F,
+        EVAL_JAC_G,
+        EVAL_H,
+    ]
     lib.FreeIpoptProblem.restype = None
     lib.FreeIpoptProblem.argtypes = [ctypes.c_void_p]
-    for name, kind in (("AddIpoptStrOption", ctypes.c_char_p), ("AddIpoptNumOption", _num), ("AddIpoptIntOption", _idx)):
+    for name, kind in (
+        ("AddIpoptStrOption", ctypes.c_char_p),
+        ("AddIpoptNumOption", _num),
+        ("AddIpoptIntOption", _idx),
+    ):
         fn = getattr(lib, name)
         fn.restype = ctypes.c_bool
         fn.argtypes = [ctypes.c_void_p, ctypes.c_char_p, kind]
@@ -135,7 +171,22 @@ def _silenced_stdout():
         os.close(devnull)
 
 
-def solve(n, m, xl, xu, gl, gu, jac_structure, hess_structure, funcs: dict, options: dict, x0, mult_g=None, mult_x_L=None, mult_x_U=None):
+def solve(
+    n,
+    m,
+    xl,
+    xu,
+    gl,
+    gu,
+    jac_structure,
+    hess_structure,
+    funcs: dict,
+    options: dict,
+    x0,
+    mult_g=None,
+    mult_x_L=None,
+    mult_x_U=None,
+):
     """Run ``IpoptSolve``; returns (status code, x, g, obj, mult_g, mult_x_L, mult_x_U)."""
     lib = library()
     jr, jc = (np.ascontiguousarray(a, dtype=np.int32) for a in jac_structure)
@@ -152,6 +203,7 @@ def solve(n, m, xl, xu, gl, gu, jac_structure, hess_structure, funcs: dict, opti
             except BaseException as err:  # noqa: BLE001 - re-raised after IpoptSolve
                 errors.append(err)
                 return False
+
         return wrapper
 
     def point(x, new_x):
@@ -198,7 +250,9 @@ def solve(n, m, xl, xu, gl, gu, jac_structure, hess_structure, funcs: dict, opti
     # keep the ctypes trampolines alive for the whole solve
     cbs = (EVAL_F(eval_f), EVAL_G(eval_g), EVAL_GRAD_F(eval_grad), EVAL_JAC_G(eval_jac), EVAL_H(eval_h))
     bounds = [np.ascontiguousarray(a, dtype=float) for a in (xl, xu, gl, gu)]
-    handle = lib.CreateIpoptProblem(n, _ptr(bounds[0]), _ptr(bounds[1]), m, _ptr(bounds[2]), _ptr(bounds[3]), nnz_j, nnz_h, 0, *cbs)
+    handle = lib.CreateIpoptProblem(
+        n, _ptr(bounds[0]), _ptr(bounds[1]), m, _ptr(bounds[2]), _ptr(bounds[3]), nnz_j, nnz_h, 0, *cbs
+    )
     if not handle:
         raise RuntimeError("IPOPT could not create the problem (CreateIpoptProblem returned NULL)")
     inter = INTERMEDIATE(intermediate)

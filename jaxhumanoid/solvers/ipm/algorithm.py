@@ -74,28 +74,61 @@ def initial_state(ctx: Context, P: Prob, x0) -> State:
     grad, jac = derivs(ctx, P, x)
     ev = Evals(f, g, grad, jac)
     bm = o.bound_mult_init_val
-    it = Iterate(x, s, jnp.zeros(m), jnp.where(P.hxl, bm, 0.0), jnp.where(P.hxu, bm, 0.0),
-                 jnp.where(P.hsl, bm, 0.0), jnp.where(P.hsu, bm, 0.0))
+    it = Iterate(
+        x,
+        s,
+        jnp.zeros(m),
+        jnp.where(P.hxl, bm, 0.0),
+        jnp.where(P.hxu, bm, 0.0),
+        jnp.where(P.hsl, bm, 0.0),
+        jnp.where(P.hsu, bm, 0.0),
+    )
     it = it._replace(y=ls_multipliers(ctx, P, it, ev))
     theta0 = theta_of(P, g, s)
     z0 = jnp.zeros(())
-    hist = {key: jnp.zeros(H if o.keep_history else 1, dtype=jnp.int32 if key in INT_FIELDS else float)
-            for key in HIST_FIELDS}
-    return State(it=it, ev=ev, mu=jnp.asarray(o.mu_init, float), k=jnp.zeros((), jnp.int32),
-                 done=jnp.zeros((), bool), status=running(),
-                 gl=fresh_globalization(o.filter_size, o.theta_min_fact * jnp.maximum(1.0, theta0),
-                                        o.theta_max_fact * jnp.maximum(1.0, theta0)),
-                 n_acceptable=jnp.zeros((), jnp.int32), tiny_count=jnp.zeros((), jnp.int32),
-                 resto_iters=jnp.zeros((), jnp.int32), hist=hist, rs=inactive_resto(n, m, o.filter_size),
-                 wd=Watchdog(jnp.zeros((), jnp.int32), z0 > 0, jnp.zeros((), jnp.int32), it, ev, z0, z0, z0, z0 > 0),
-                 cur_acc=jnp.zeros((), bool), acc_it=it, acc_ev=ev, has_acc=jnp.zeros((), bool))
+    hist = {
+        key: jnp.zeros(H if o.keep_history else 1, dtype=jnp.int32 if key in INT_FIELDS else float)
+        for key in HIST_FIELDS
+    }
+    return State(
+        it=it,
+        ev=ev,
+        mu=jnp.asarray(o.mu_init, float),
+        k=jnp.zeros((), jnp.int32),
+        done=jnp.zeros((), bool),
+        status=running(),
+        gl=fresh_globalization(
+            o.filter_size, o.theta_min_fact * jnp.maximum(1.0, theta0), o.theta_max_fact * jnp.maximum(1.0, theta0)
+        ),
+        n_acceptable=jnp.zeros((), jnp.int32),
+        tiny_count=jnp.zeros((), jnp.int32),
+        resto_iters=jnp.zeros((), jnp.int32),
+        hist=hist,
+        rs=inactive_resto(n, m, o.filter_size),
+        wd=Watchdog(jnp.zeros((), jnp.int32), z0 > 0, jnp.zeros((), jnp.int32), it, ev, z0, z0, z0, z0 > 0),
+        cur_acc=jnp.zeros((), bool),
+        acc_it=it,
+        acc_ev=ev,
+        has_acc=jnp.zeros((), bool),
+    )
 
 
 def initial_info(S: State) -> StepInfo:
     """The history row of iteration 0."""
     zf, zi = jnp.zeros(()), jnp.zeros((), jnp.int32)
-    return StepInfo(mu=S.mu, d_norm=zf, reg=zf, alpha_du=zf, alpha_pr=zf, ls=zi, kind=zi, resto_iters=zi,
-                    n_fact=zi, mode=zi, res_ratio=zf)
+    return StepInfo(
+        mu=S.mu,
+        d_norm=zf,
+        reg=zf,
+        alpha_du=zf,
+        alpha_pr=zf,
+        ls=zi,
+        kind=zi,
+        resto_iters=zi,
+        n_fact=zi,
+        mode=zi,
+        res_ratio=zf,
+    )
 
 
 def barrier_update(ctx: Context, P: Prob, S: State):
@@ -103,9 +136,14 @@ def barrier_update(ctx: Context, P: Prob, S: State):
     step); not in the first iteration of a restoration phase (IPOPT). A decrease empties the
     filter. Returns (S, mu, number of decreases)."""
     it, ev, R = S.it, S.ev, S.rs
-    mu, nupd = barrier.update_mu(ctx.o, S.mu, barrier.mu_floor(ctx.o, P),
-                                 lambda mu_: errors(ctx, P, it, ev, mu_, R).Emu,
-                                 (S.tiny_count > 0) & ~R.on, R.fresh)
+    mu, nupd = barrier.update_mu(
+        ctx.o,
+        S.mu,
+        barrier.mu_floor(ctx.o, P),
+        lambda mu_: errors(ctx, P, it, ev, mu_, R).Emu,
+        (S.tiny_count > 0) & ~R.on,
+        R.fresh,
+    )
     S = lax.cond(nupd > 0, lambda s_: s_._replace(gl=filter_reset(ctx.o, s_.gl)), lambda s_: s_, S)
     return S, mu, nupd
 
@@ -120,28 +158,54 @@ def take_step(ctx: Context, P: Prob, S: State, ls: LineSearch, mu, tau):
     a_pr = ls.a_pr
     dzl, dzu, dvl, dvu = dual_steps(P, it, D.dx, D.ds, mu)
     dzp, dzn = pn_dual_steps(R, rr, D.dp, D.dn, mu)
-    a_du = jnp.min(jnp.stack([frac_dual(it.zl, dzl, P.hxl, tau), frac_dual(it.zu, dzu, P.hxu, tau),
-                              frac_dual(it.vl, dvl, P.hsl, tau), frac_dual(it.vu, dvu, P.hsu, tau),
-                              frac_dual(R.zp, dzp, rr, tau), frac_dual(R.zn, dzn, rr, tau)]))
+    a_du = jnp.min(
+        jnp.stack(
+            [
+                frac_dual(it.zl, dzl, P.hxl, tau),
+                frac_dual(it.zu, dzu, P.hxu, tau),
+                frac_dual(it.vl, dvl, P.hsl, tau),
+                frac_dual(it.vu, dvu, P.hsu, tau),
+                frac_dual(R.zp, dzp, rr, tau),
+                frac_dual(R.zn, dzn, rr, tau),
+            ]
+        )
+    )
     x_n = it.x + a_pr * D.dx
     s_n = it.s + a_pr * D.ds
     s_n = jnp.where(P.free, ls.g, jnp.where(P.eq, P.gl, s_n))
     y_n = it.y + a_pr * D.dy
-    zl, zu, vl, vu = kappa_sigma_reset(o, P, x_n, s_n, it.zl + a_du * dzl, it.zu + a_du * dzu,
-                                       it.vl + a_du * dvl, it.vu + a_du * dvu, mu)
+    zl, zu, vl, vu = kappa_sigma_reset(
+        o, P, x_n, s_n, it.zl + a_du * dzl, it.zu + a_du * dzu, it.vl + a_du * dvl, it.vu + a_du * dvu, mu
+    )
     R_acc = pn_take_step(o, R, rr, a_pr, a_du, D.dp, D.dn, dzp, dzn, mu)
-    S_acc = lax.cond(ls.ftype, lambda s_: s_,
-                     lambda s_: s_._replace(gl=filter_add(o, s_.gl, ls.ref.theta, ls.ref.phi)), S)
+    S_acc = lax.cond(
+        ls.ftype, lambda s_: s_, lambda s_: s_._replace(gl=filter_add(o, s_.gl, ls.ref.theta, ls.ref.phi)), S
+    )
     return S_acc._replace(it=Iterate(x_n, s_n, y_n, zl, zu, vl, vu), rs=R_acc), a_du
 
 
 def step_kind(ls: LineSearch, start_resto):
     """The letter after alpha_pr in IPOPT's log: R restoration starts, s tiny step, w/W watchdog
     tentative step / reset, F/H (f/h) f- or h-type step with (without) second-order correction."""
-    return jnp.where(start_resto, ord("R"),
-                     jnp.where(ls.tiny, ord("s"), jnp.where(ls.wd_tentative, ord("w"), jnp.where(ls.wd_reset, ord("W"),
-                               jnp.where(ls.use_soc, jnp.where(ls.ftype, ord("F"), ord("H")),
-                                         jnp.where(ls.ftype, ord("f"), ord("h")))))))
+    return jnp.where(
+        start_resto,
+        ord("R"),
+        jnp.where(
+            ls.tiny,
+            ord("s"),
+            jnp.where(
+                ls.wd_tentative,
+                ord("w"),
+                jnp.where(
+                    ls.wd_reset,
+                    ord("W"),
+                    jnp.where(
+                        ls.use_soc, jnp.where(ls.ftype, ord("F"), ord("H")), jnp.where(ls.ftype, ord("f"), ord("h"))
+                    ),
+                ),
+            ),
+        ),
+    )
 
 
 def next_watchdog(o: IPMOptions, S: State, ls: LineSearch, start_resto) -> Watchdog:
@@ -156,8 +220,11 @@ def next_watchdog(o: IPMOptions, S: State, ls: LineSearch, start_resto) -> Watch
         trials=jnp.where(ls.wd_tentative, W.trials + 1, 0).astype(jnp.int32),
         it=tree_where(start_wd, S.it, W.it),
         ev=tree_where(start_wd, S.ev, W.ev),
-        theta=jnp.where(start_wd, ls.theta_k, W.theta), phi=jnp.where(start_wd, ls.phi_k, W.phi),
-        gd=jnp.where(start_wd, ls.gd, W.gd), skip_first=ls.wd_reset)
+        theta=jnp.where(start_wd, ls.theta_k, W.theta),
+        phi=jnp.where(start_wd, ls.phi_k, W.phi),
+        gd=jnp.where(start_wd, ls.gd, W.gd),
+        skip_first=ls.wd_reset,
+    )
 
 
 def transition(ctx: Context, P: Prob, S: State, S_acc: State, ls: LineSearch, mu):
@@ -168,7 +235,7 @@ def transition(ctx: Context, P: Prob, S: State, S_acc: State, ls: LineSearch, mu
 
     Returns (State with the new iterate and evaluations, start_resto, resto_failed, rollback)."""
     resto = S.rs.on
-    ls_failed = ~ls.accepted & ~ls.wd_reset      # includes a failed inertia correction (IC-6)
+    ls_failed = ~ls.accepted & ~ls.wd_reset  # includes a failed inertia correction (IC-6)
     stop_acceptable = ls_failed & S.cur_acc & ~resto
     start_resto = ls_failed & ~S.cur_acc & ~resto
     resto_failed = ls_failed & resto
@@ -210,17 +277,33 @@ def iteration(ctx: Context, P: Prob, S: State):
     # ||d|| as IPOPT's log: the primal step (x, s and, in the restoration phase, p and n)
     d_norm = jnp.max(jnp.stack([jnp.max(jnp.abs(v), initial=0.0) for v in (D.dx, D.ds, D.dp, D.dn)]))
     resto_iters = S.resto_iters + resto.astype(jnp.int32)
-    info = StepInfo(mu=mu, d_norm=d_norm, reg=nw.ic.dw, alpha_du=jnp.where(ls.accepted, a_du, 0.0),
-                    alpha_pr=jnp.where(ls.accepted, ls.a_pr, 0.0), ls=ls.n_trials, kind=step_kind(ls, start_resto),
-                    resto_iters=resto_iters, n_fact=nw.ic.n_fact, mode=resto.astype(jnp.int32),
-                    res_ratio=nw.res_ratio)
-    S_next = S_next._replace(tiny_count=jnp.where(ls.tiny, S.tiny_count + 1, 0).astype(jnp.int32),
-                             wd=next_watchdog(ctx.o, S, ls, start_resto), resto_iters=resto_iters, k=S.k + 1)
+    info = StepInfo(
+        mu=mu,
+        d_norm=d_norm,
+        reg=nw.ic.dw,
+        alpha_du=jnp.where(ls.accepted, a_du, 0.0),
+        alpha_pr=jnp.where(ls.accepted, ls.a_pr, 0.0),
+        ls=ls.n_trials,
+        kind=step_kind(ls, start_resto),
+        resto_iters=resto_iters,
+        n_fact=nw.ic.n_fact,
+        mode=resto.astype(jnp.int32),
+        res_ratio=nw.res_ratio,
+    )
+    S_next = S_next._replace(
+        tiny_count=jnp.where(ls.tiny, S.tiny_count + 1, 0).astype(jnp.int32),
+        wd=next_watchdog(ctx.o, S, ls, start_resto),
+        resto_iters=resto_iters,
+        k=S.k + 1,
+    )
     # the regularisation history belongs to the problem being solved (IPOPT's restoration
     # phase has its own); entering and leaving the restoration set it themselves
     upd = (~resto & ~start_resto) | (resto & S_next.rs.on)
-    S_next = S_next._replace(gl=S_next.gl._replace(dw_last=jnp.where(upd, nw.ic.dw_last, S_next.gl.dw_last),
-                                                   pert=jnp.where(upd, nw.ic.pert, S_next.gl.pert)))
+    S_next = S_next._replace(
+        gl=S_next.gl._replace(
+            dw_last=jnp.where(upd, nw.ic.dw_last, S_next.gl.dw_last), pert=jnp.where(upd, nw.ic.pert, S_next.gl.pert)
+        )
+    )
     return S_next, status, info
 
 

@@ -19,17 +19,25 @@ from jaxhumanoid.solvers.ipm.options import IPMOptions
 from jaxhumanoid.solvers.ipm.problem import slacks
 from jaxhumanoid.solvers.ipm.state import Prob
 
-KAPPA_D = 1e-4          # linear damping of one-sided bounds (Sec. 3.7)
-MAX_MU_UPDATES = 20     # barrier updates in one iteration at most
+KAPPA_D = 1e-4  # linear damping of one-sided bounds (Sec. 3.7)
+MAX_MU_UPDATES = 20  # barrier updates in one iteration at most
 
 
 def barrier_phi(P: Prob, f, x, s, mu):
     """phi_mu of (3) plus the one-sided linear damping (Sec. 3.7), a scalar."""
     dxl, dxu, dsl, dsu = slacks(P, x, s)
-    logs = (jnp.sum(jnp.where(P.hxl, jnp.log(dxl), 0.0)) + jnp.sum(jnp.where(P.hxu, jnp.log(dxu), 0.0))
-            + jnp.sum(jnp.where(P.hsl, jnp.log(dsl), 0.0)) + jnp.sum(jnp.where(P.hsu, jnp.log(dsu), 0.0)))
-    damp = (jnp.sum(jnp.where(P.hxl & ~P.hxu, dxl, 0.0)) + jnp.sum(jnp.where(P.hxu & ~P.hxl, dxu, 0.0))
-            + jnp.sum(jnp.where(P.hsl & ~P.hsu, dsl, 0.0)) + jnp.sum(jnp.where(P.hsu & ~P.hsl, dsu, 0.0)))
+    logs = (
+        jnp.sum(jnp.where(P.hxl, jnp.log(dxl), 0.0))
+        + jnp.sum(jnp.where(P.hxu, jnp.log(dxu), 0.0))
+        + jnp.sum(jnp.where(P.hsl, jnp.log(dsl), 0.0))
+        + jnp.sum(jnp.where(P.hsu, jnp.log(dsu), 0.0))
+    )
+    damp = (
+        jnp.sum(jnp.where(P.hxl & ~P.hxu, dxl, 0.0))
+        + jnp.sum(jnp.where(P.hxu & ~P.hxl, dxu, 0.0))
+        + jnp.sum(jnp.where(P.hsl & ~P.hsu, dsl, 0.0))
+        + jnp.sum(jnp.where(P.hsu & ~P.hsl, dsu, 0.0))
+    )
     return f - mu * logs + KAPPA_D * mu * damp
 
 
@@ -37,10 +45,19 @@ def barrier_grad(P: Prob, grad, x, s, mu):
     """(grad_x phi_mu (n,), grad_s phi_mu (m,)) given grad f."""
     dxl, dxu, dsl, dsu = slacks(P, x, s)
     kd = KAPPA_D * mu
-    gx = (grad - jnp.where(P.hxl, mu / dxl, 0.0) + jnp.where(P.hxu, mu / dxu, 0.0)
-          + jnp.where(P.hxl & ~P.hxu, kd, 0.0) - jnp.where(P.hxu & ~P.hxl, kd, 0.0))
-    gs = (-jnp.where(P.hsl, mu / dsl, 0.0) + jnp.where(P.hsu, mu / dsu, 0.0)
-          + jnp.where(P.hsl & ~P.hsu, kd, 0.0) - jnp.where(P.hsu & ~P.hsl, kd, 0.0))
+    gx = (
+        grad
+        - jnp.where(P.hxl, mu / dxl, 0.0)
+        + jnp.where(P.hxu, mu / dxu, 0.0)
+        + jnp.where(P.hxl & ~P.hxu, kd, 0.0)
+        - jnp.where(P.hxu & ~P.hxl, kd, 0.0)
+    )
+    gs = (
+        -jnp.where(P.hsl, mu / dsl, 0.0)
+        + jnp.where(P.hsu, mu / dsu, 0.0)
+        + jnp.where(P.hsl & ~P.hsu, kd, 0.0)
+        - jnp.where(P.hsu & ~P.hsl, kd, 0.0)
+    )
     return jnp.where(P.fixed, 0.0, gx), jnp.where(P.hsl | P.hsu, gs, 0.0)
 
 
@@ -52,7 +69,7 @@ def mu_floor(o: IPMOptions, P: Prob):
 
 def next_mu(o: IPMOptions, mu, mu_min):
     """One monotone decrease (7): max(mu_min, min(kappa_mu mu, mu^theta_mu))."""
-    return jnp.maximum(mu_min, jnp.minimum(o.kappa_mu * mu, mu ** o.theta_mu))
+    return jnp.maximum(mu_min, jnp.minimum(o.kappa_mu * mu, mu**o.theta_mu))
 
 
 def update_mu(o: IPMOptions, mu, mu_min, barrier_error: Callable, force, frozen):
@@ -63,8 +80,12 @@ def update_mu(o: IPMOptions, mu, mu_min, barrier_error: Callable, force, frozen)
 
     def cond(c):
         mu_, cnt, force_ = c
-        return (((barrier_error(mu_) <= o.kappa_eps * mu_) | force_) & (mu_ > mu_min * (1 + 1e-12))
-                & (cnt < MAX_MU_UPDATES) & ~frozen)
+        return (
+            ((barrier_error(mu_) <= o.kappa_eps * mu_) | force_)
+            & (mu_ > mu_min * (1 + 1e-12))
+            & (cnt < MAX_MU_UPDATES)
+            & ~frozen
+        )
 
     def body(c):
         mu_, cnt, _ = c

@@ -24,19 +24,20 @@ from jaxhumanoid.solvers.ipm.step import sigmas, solve_reduced
 
 class Newton(NamedTuple):
     """The Newton step (13) of one iteration with what the line search reuses."""
+
     ic: Inertia
-    ok: jax.Array           # inertia corrected and the step finite
+    ok: jax.Array  # inertia corrected and the step finite
     d: Direction
-    res_ratio: jax.Array    # residual ratio of the solve
-    gx: jax.Array           # barrier gradients in x (n,), s, p, n (m,)
+    res_ratio: jax.Array  # residual ratio of the solve
+    gx: jax.Array  # barrier gradients in x (n,), s, p, n (m,)
     gs: jax.Array
     gp: jax.Array
     gn: jax.Array
-    rx: jax.Array           # right-hand sides of (13) besides the constraint residual c
+    rx: jax.Array  # right-hand sides of (13) besides the constraint residual c
     rs: jax.Array
     rp: jax.Array
     rn: jax.Array
-    c: jax.Array            # (m,) constraint residual of the problem being solved
+    c: jax.Array  # (m,) constraint residual of the problem being solved
 
 
 def search_direction(ctx: Context, P: Prob, S: State, mu) -> Newton:
@@ -50,8 +51,9 @@ def search_direction(ctx: Context, P: Prob, S: State, mu) -> Newton:
     prox = prox_weight(ctx.o, R, mu)
     sig_p = jnp.where(rr, R.zp / R.p, 0.0)
     sig_n = jnp.where(rr, R.zn / R.n, 0.0)
-    ic = inertia_corrected_factor(ctx, P, rr, Wvals, ev.jac, sig_x + prox, sig_s, sig_p, sig_n,
-                                  S.gl.dw_last, mu, S.gl.pert)
+    ic = inertia_corrected_factor(
+        ctx, P, rr, Wvals, ev.jac, sig_x + prox, sig_s, sig_p, sig_n, S.gl.dw_last, mu, S.gl.pert
+    )
     gx, gs = barrier_grad(P, objective_grad(ctx.o, R, ev.grad, it.x, mu), it.x, it.s, mu)
     gp, gn = pn_barrier_grad(ctx.o, R, rr, mu)
     rx = gx + jt_mult(ctx, ev.jac, it.y)
@@ -61,8 +63,7 @@ def search_direction(ctx: Context, P: Prob, S: State, mu) -> Newton:
     c = resto_resid(P, R, ev.g, it.s, R.p, R.n)
     dx, ds, dy, dp, dn, res_ratio = solve_reduced(ctx, P, ic.A, ic.B, ic.fac, ic.invs, rx, rs, rp, rn, c)
     finite_step = jnp.all(jnp.isfinite(dx)) & jnp.all(jnp.isfinite(dy))
-    return Newton(ic, ic.ok & finite_step, Direction(dx, ds, dy, dp, dn), res_ratio, gx, gs, gp, gn,
-                  rx, rs, rp, rn, c)
+    return Newton(ic, ic.ok & finite_step, Direction(dx, ds, dy, dp, dn), res_ratio, gx, gs, gp, gn, rx, rs, rp, rn, c)
 
 
 def corrected_direction(ctx: Context, P: Prob, nw: Newton, c_soc) -> Direction:

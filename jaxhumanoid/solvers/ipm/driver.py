@@ -23,6 +23,7 @@ def _core(nlp: NLP, batched: bool):
     (the static options are part of the options' pytree structure) and shapes."""
     key = ("ipm", batched)
     if key not in nlp.cache:
+
         def fn(x0, xl, xu, gl, gu, p, opts):
             return solve(nlp, opts, x0, xl, xu, gl, gu, p)
 
@@ -64,9 +65,21 @@ def _package(nlp, out: Solution, bounds, opts, solve_time, compile_time):
     if history is not None and opts.print_level > 0:
         print(log)
     viol = constraint_violation(np.asarray(out.g), x, bounds.gl, bounds.gu, bounds.xl, bounds.xu)
-    return NLPResult(x=x, lam_g=lam, z_l=zl, z_u=zu, status=status, success=code in SUCCESS,
-                     iterations=k, solve_time_s=solve_time, compile_time_s=compile_time,
-                     objective=float(out.f), max_constraint_violation=viol, history=history, log=log)
+    return NLPResult(
+        x=x,
+        lam_g=lam,
+        z_l=zl,
+        z_u=zu,
+        status=status,
+        success=code in SUCCESS,
+        iterations=k,
+        solve_time_s=solve_time,
+        compile_time_s=compile_time,
+        objective=float(out.f),
+        max_constraint_violation=viol,
+        history=history,
+        log=log,
+    )
 
 
 def _compile_and_run(core, args):
@@ -96,8 +109,15 @@ def solve_ipm(nlp: NLP, p, bounds: Bounds, x0=None, options: IPMOptions | dict |
     x0 = np.asarray(bounds.x0 if x0 is None else x0, dtype=float)
     _check_shapes(nlp, x0, bounds)
     core = _core(nlp, batched=False)
-    args = (jnp.asarray(x0), jnp.asarray(bounds.xl, float), jnp.asarray(bounds.xu, float),
-            jnp.asarray(bounds.gl, float), jnp.asarray(bounds.gu, float), p, as_float64(opts))
+    args = (
+        jnp.asarray(x0),
+        jnp.asarray(bounds.xl, float),
+        jnp.asarray(bounds.xu, float),
+        jnp.asarray(bounds.gl, float),
+        jnp.asarray(bounds.gu, float),
+        p,
+        as_float64(opts),
+    )
     out, solve_time, compile_time = _compile_and_run(core, args)
     return _package(nlp, out, bounds, opts, solve_time, compile_time)
 

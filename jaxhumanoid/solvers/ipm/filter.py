@@ -25,11 +25,17 @@ def filter_add(o: IPMOptions, G: Globalization, theta, phi) -> Globalization:
     """Augment the filter with (theta, phi) and its margins (22); the oldest entry makes room
     when all ``filter_size`` are taken."""
     i = G.filt_n % o.filter_size
-    return G._replace(filt_theta=G.filt_theta.at[i].set((1 - o.gamma_theta) * theta),
-                      filt_phi=G.filt_phi.at[i].set(phi - o.gamma_phi * theta), filt_n=G.filt_n + 1)
+    return G._replace(
+        filt_theta=G.filt_theta.at[i].set((1 - o.gamma_theta) * theta),
+        filt_phi=G.filt_phi.at[i].set(phi - o.gamma_phi * theta),
+        filt_n=G.filt_n + 1,
+    )
 
 
 def filter_reset(o: IPMOptions, G: Globalization) -> Globalization:
     """The empty filter (after a barrier update, as IPOPT), theta_min/theta_max kept."""
-    return G._replace(filt_theta=jnp.full(o.filter_size, jnp.inf), filt_phi=jnp.full(o.filter_size, jnp.inf),
-                      filt_n=jnp.zeros((), jnp.int32))
+    return G._replace(
+        filt_theta=jnp.full(o.filter_size, jnp.inf),
+        filt_phi=jnp.full(o.filter_size, jnp.inf),
+        filt_n=jnp.zeros((), jnp.int32),
+    )

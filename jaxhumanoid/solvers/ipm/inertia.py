@@ -34,16 +34,17 @@ UNDETERMINED, NOT_DEGENERATE, DEGENERATE = 0, 1, 2
 
 class Inertia(NamedTuple):
     """Outcome of Algorithm IC: the accepted factorisation and the regularisation used."""
+
     A: jax.Array
     B: jax.Array
     fac: kkt.Factor
-    invs: tuple             # eliminated rows' inverse pivots (``step.kkt_parts``)
-    ok: jax.Array           # inertia (n, m, 0) reached
-    dw: jax.Array           # delta_w, delta_c of the accepted factorisation
+    invs: tuple  # eliminated rows' inverse pivots (``step.kkt_parts``)
+    ok: jax.Array  # inertia (n, m, 0) reached
+    dw: jax.Array  # delta_w, delta_c of the accepted factorisation
     dc: jax.Array
-    dw_last: jax.Array      # the memory for the next iteration's first delta_w
-    n_fact: jax.Array       # factorisations tried
-    pert: jax.Array         # (3,) degeneracy test state
+    dw_last: jax.Array  # the memory for the next iteration's first delta_w
+    n_fact: jax.Array  # factorisations tried
+    pert: jax.Array  # (3,) degeneracy test state
 
 
 def finalize_test(o: IPMOptions, test, pert):
@@ -56,10 +57,16 @@ def finalize_test(o: IPMOptions, test, pert):
     t0x = test == T_0X
     tcx = test == T_CX
     d = d + jnp.where((tc0 & (j == UNDETERMINED)) | (t0x & (h == UNDETERMINED)) | tcx, 1, 0)
-    h_n = jnp.where((t00 | tc0) & (h == UNDETERMINED), NOT_DEGENERATE,
-                    jnp.where((t0x | tcx) & (h == UNDETERMINED) & (d >= o.degen_iters_max), DEGENERATE, h))
-    j_n = jnp.where((t00 | t0x) & (j == UNDETERMINED), NOT_DEGENERATE,
-                    jnp.where((tc0 | tcx) & (j == UNDETERMINED) & (d >= o.degen_iters_max), DEGENERATE, j))
+    h_n = jnp.where(
+        (t00 | tc0) & (h == UNDETERMINED),
+        NOT_DEGENERATE,
+        jnp.where((t0x | tcx) & (h == UNDETERMINED) & (d >= o.degen_iters_max), DEGENERATE, h),
+    )
+    j_n = jnp.where(
+        (t00 | t0x) & (j == UNDETERMINED),
+        NOT_DEGENERATE,
+        jnp.where((tc0 | tcx) & (j == UNDETERMINED) & (d >= o.degen_iters_max), DEGENERATE, j),
+    )
     # IPOPT decides both at once on the plain trial when both are undetermined
     j_n = jnp.where(t00 & (h == UNDETERMINED) & (j == UNDETERMINED), NOT_DEGENERATE, j_n)
     return jnp.stack([h_n, j_n, d]).astype(jnp.int32)
@@ -67,8 +74,11 @@ def finalize_test(o: IPMOptions, test, pert):
 
 def wrong_inertia_dw(o: IPMOptions, dw, dw_last):
     """The next delta_w after a wrong inertia at ``dw`` (IC-3 to IC-6)."""
-    first = jnp.where(dw_last == 0.0, o.first_hessian_perturbation,
-                      jnp.maximum(o.min_hessian_perturbation, o.perturb_dec_fact * dw_last))
+    first = jnp.where(
+        dw_last == 0.0,
+        o.first_hessian_perturbation,
+        jnp.maximum(o.min_hessian_perturbation, o.perturb_dec_fact * dw_last),
+    )
     big = (dw_last == 0.0) | (1e5 * dw_last < dw)
     return jnp.where(dw == 0.0, first, jnp.where(big, o.perturb_inc_fact_first, o.perturb_inc_fact) * dw)
 
@@ -80,24 +90,32 @@ def singular_rule(test, pert, dc, delta_cd):
 
     Returns (next delta_c, whether delta_w grows, next test)."""
     undetermined = (pert[0] == UNDETERMINED) | (pert[1] == UNDETERMINED)
-    s_dc = jnp.where(undetermined,
-                     jnp.where(test == T_00, jnp.where(pert[1] == UNDETERMINED, delta_cd, dc),
-                               jnp.where(test == T_C0, 0.0, jnp.where(test == T_0X, delta_cd, dc))),
-                     jnp.where(dc > 0, dc, delta_cd))
+    s_dc = jnp.where(
+        undetermined,
+        jnp.where(
+            test == T_00,
+            jnp.where(pert[1] == UNDETERMINED, delta_cd, dc),
+            jnp.where(test == T_C0, 0.0, jnp.where(test == T_0X, delta_cd, dc)),
+        ),
+        jnp.where(dc > 0, dc, delta_cd),
+    )
     s_dw_grow = jnp.where(undetermined, ~((test == T_00) & (pert[1] == UNDETERMINED)), dc > 0)
-    s_test = jnp.where(undetermined,
-                       jnp.where(test == T_00, jnp.where(pert[1] == UNDETERMINED, T_C0, T_0X),
-                                 jnp.where(test == T_C0, T_0X, T_CX)), T_NONE)
+    s_test = jnp.where(
+        undetermined,
+        jnp.where(test == T_00, jnp.where(pert[1] == UNDETERMINED, T_C0, T_0X), jnp.where(test == T_C0, T_0X, T_CX)),
+        T_NONE,
+    )
     return s_dc, s_dw_grow, s_test
 
 
-def inertia_corrected_factor(ctx: Context, P: Prob, rr, Wvals, jac, sig_x, sig_s, sig_p, sig_n,
-                             dw_last, mu, pert) -> Inertia:
+def inertia_corrected_factor(
+    ctx: Context, P: Prob, rr, Wvals, jac, sig_x, sig_s, sig_p, sig_n, dw_last, mu, pert
+) -> Inertia:
     """Algorithm IC (Sec. 3.1) with IPOPT's rules: the smallest delta_w giving inertia (n, m, 0),
     delta_c = jacobian_regularization_value mu^kappa_c when K is singular; all trial
     factorisations share one traced factorisation inside a while_loop."""
     o, st = ctx.o, ctx.st
-    delta_cd = o.jacobian_regularization_value * mu ** o.jacobian_regularization_exponent
+    delta_cd = o.jacobian_regularization_value * mu**o.jacobian_regularization_exponent
     S_, nb = st.S, st.nb
     base = assemble_base(ctx, P, Wvals, jac)
     z3 = jnp.zeros((S_, nb, nb))
@@ -116,8 +134,9 @@ def inertia_corrected_factor(ctx: Context, P: Prob, rr, Wvals, jac, sig_x, sig_s
     def body(c):
         _, dw, dc, t, test, pert_ = c[:6]
         A_, B_, fac_, invs_ = factorize(ctx, P, rr, base, sigs, dw, dc)
-        fac_ = fac_._replace(npos=fac_.npos.astype(jnp.int64), nneg=fac_.nneg.astype(jnp.int64),
-                             nzero=fac_.nzero.astype(jnp.int64))
+        fac_ = fac_._replace(
+            npos=fac_.npos.astype(jnp.int64), nneg=fac_.nneg.astype(jnp.int64), nzero=fac_.nzero.astype(jnp.int64)
+        )
         ok = kkt.inertia_ok(st, fac_)
         singular = (~ok) & (fac_.nzero > 0)
         wrong = (~ok) & ~singular
@@ -131,8 +150,21 @@ def inertia_corrected_factor(ctx: Context, P: Prob, rr, Wvals, jac, sig_x, sig_s
 
     zm = jnp.zeros(ctx.m)
     ok, dw, dc, trials, test, pert, A, B, fac, invs = lax.while_loop(
-        cond, body, (jnp.zeros((), bool), dw0, dc0, jnp.zeros((), jnp.int32), jnp.asarray(test0, jnp.int32),
-                     pert, z3, z3, fac0, (zm, zm, zm)))
+        cond,
+        body,
+        (
+            jnp.zeros((), bool),
+            dw0,
+            dc0,
+            jnp.zeros((), jnp.int32),
+            jnp.asarray(test0, jnp.int32),
+            pert,
+            z3,
+            z3,
+            fac0,
+            (zm, zm, zm),
+        ),
+    )
     pert = jnp.where(ok, finalize_test(o, test, pert), pert)
     new_dw_last = jnp.where(ok & (dw > 0), dw, dw_last)
     return Inertia(A, B, fac, invs, ok, dw, dc, new_dw_last, trials, pert)

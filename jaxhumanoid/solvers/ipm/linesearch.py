@@ -32,13 +32,15 @@ EPS = float(np.finfo(np.float64).eps)
 
 class Reference(NamedTuple):
     """The point trial points are judged against: the current iterate, or the watchdog's start."""
+
     theta: jax.Array
     phi: jax.Array
-    gd: jax.Array           # directional derivative grad phi^T d
+    gd: jax.Array  # directional derivative grad phi^T d
 
 
 class Trial(NamedTuple):
     """A trial point's evaluations, slacks and merit (theta, phi); inf where not finite."""
+
     f: jax.Array
     g: jax.Array
     s: jax.Array
@@ -48,8 +50,9 @@ class Trial(NamedTuple):
 
 class SOC(NamedTuple):
     """Loop state of the second-order corrections."""
-    p: jax.Array            # corrections done
-    csoc: jax.Array         # (m,) accumulated constraint residual of the next correction
+
+    p: jax.Array  # corrections done
+    csoc: jax.Array  # (m,) accumulated constraint residual of the next correction
     theta_old: jax.Array
     active: jax.Array
     acc: jax.Array
@@ -63,8 +66,9 @@ class SOC(NamedTuple):
 
 class Backtrack(NamedTuple):
     """Loop state of the backtracking (alpha halved)."""
+
     a: jax.Array
-    t: jax.Array            # trials made (the first trial at alpha_max included)
+    t: jax.Array  # trials made (the first trial at alpha_max included)
     acc: jax.Array
     ftype: jax.Array
     f: jax.Array
@@ -75,21 +79,22 @@ class Backtrack(NamedTuple):
 
 class LineSearch(NamedTuple):
     """Outcome of the line search of one iteration."""
+
     accepted: jax.Array
-    a_pr: jax.Array         # primal step size taken
-    amax: jax.Array         # alpha_max of (15)
-    ftype: jax.Array        # f-type step (or one that leaves the filter alone)
-    d: Direction            # the direction taken (corrected or not)
-    f: jax.Array            # evaluations at the accepted trial
+    a_pr: jax.Array  # primal step size taken
+    amax: jax.Array  # alpha_max of (15)
+    ftype: jax.Array  # f-type step (or one that leaves the filter alone)
+    d: Direction  # the direction taken (corrected or not)
+    f: jax.Array  # evaluations at the accepted trial
     g: jax.Array
     n_trials: jax.Array
     use_soc: jax.Array
-    tiny: jax.Array         # the step is negligible (accepted without tests)
-    theta_k: jax.Array      # merit and directional derivative at the current iterate
+    tiny: jax.Array  # the step is negligible (accepted without tests)
+    theta_k: jax.Array  # merit and directional derivative at the current iterate
     phi_k: jax.Array
     gd: jax.Array
     ref: Reference
-    wd: Watchdog            # the watchdog at the start of the iteration (after a barrier update)
+    wd: Watchdog  # the watchdog at the start of the iteration (after a barrier update)
     start_wd: jax.Array
     in_wd: jax.Array
     wd_tentative: jax.Array
@@ -102,18 +107,22 @@ def alpha_min(o: IPMOptions, theta, theta_min, gd):
     mgd = jnp.where(gd_neg, -gd, 1.0)
     return o.alpha_min_frac * jnp.where(
         gd_neg,
-        jnp.where(theta <= theta_min,
-                  jnp.minimum(o.gamma_theta, jnp.minimum(o.gamma_phi * theta / mgd,
-                                                         o.delta * theta ** o.s_theta / mgd ** o.s_phi)),
-                  jnp.minimum(o.gamma_theta, o.gamma_phi * theta / mgd)),
-        o.gamma_theta)
+        jnp.where(
+            theta <= theta_min,
+            jnp.minimum(
+                o.gamma_theta, jnp.minimum(o.gamma_phi * theta / mgd, o.delta * theta**o.s_theta / mgd**o.s_phi)
+            ),
+            jnp.minimum(o.gamma_theta, o.gamma_phi * theta / mgd),
+        ),
+        o.gamma_theta,
+    )
 
 
 def switching(o: IPMOptions, ref: Reference, a):
     """Switching condition (19) at step size a."""
     gd_neg = ref.gd < 0
     mgd = jnp.where(gd_neg, -ref.gd, 1.0)
-    return gd_neg & (a * mgd ** o.s_phi > o.delta * ref.theta ** o.s_theta)
+    return gd_neg & (a * mgd**o.s_phi > o.delta * ref.theta**o.s_theta)
 
 
 def acceptable(o: IPMOptions, G: Globalization, ref: Reference, a, theta_t, phi_t):
@@ -143,8 +152,10 @@ def trial_at(ctx: Context, P: Prob, it: Iterate, R: Resto, mu, a, d: Direction) 
 
 def step_max(P: Prob, it: Iterate, R: Resto, rr, tau, d: Direction):
     """Fraction to the boundary (15) for x, s and, in the restoration phase, p, n."""
-    return jnp.minimum(frac_to_boundary(P, it.x, it.s, d.dx, d.ds, tau),
-                       jnp.minimum(frac_dual(R.p, d.dp, rr, tau), frac_dual(R.n, d.dn, rr, tau)))
+    return jnp.minimum(
+        frac_to_boundary(P, it.x, it.s, d.dx, d.ds, tau),
+        jnp.minimum(frac_dual(R.p, d.dp, rr, tau), frac_dual(R.n, d.dn, rr, tau)),
+    )
 
 
 def tiny_step(it: Iterate, d: Direction, ok_step, resto):
@@ -157,21 +168,48 @@ def watchdog_start(o: IPMOptions, W: Watchdog, nupd, resto):
     """The watchdog after a barrier update (which ends it and its count) and whether it starts:
     after ``watchdog_shortened_iter_trigger`` shortened steps, outside the restoration phase."""
     W = W._replace(shortened=jnp.where(nupd > 0, 0, W.shortened), on=W.on & (nupd == 0))
-    start = ((~W.on) & (~resto) & (W.shortened >= o.watchdog_shortened_iter_trigger)
-             & (o.watchdog_shortened_iter_trigger > 0) & (~W.skip_first))
+    start = (
+        (~W.on)
+        & (~resto)
+        & (W.shortened >= o.watchdog_shortened_iter_trigger)
+        & (o.watchdog_shortened_iter_trigger > 0)
+        & (~W.skip_first)
+    )
     return W, start
 
 
-def second_order_correction(ctx: Context, P: Prob, G: Globalization, it: Iterate, R: Resto, mu, tau, nw: Newton,
-                            ref: Reference, amax, first: Trial, active) -> SOC:
+def second_order_correction(
+    ctx: Context,
+    P: Prob,
+    G: Globalization,
+    it: Iterate,
+    R: Resto,
+    mu,
+    tau,
+    nw: Newton,
+    ref: Reference,
+    amax,
+    first: Trial,
+    active,
+) -> SOC:
     """Up to ``max_soc`` corrections (Sec. 2.4), each judged at alpha_max, while theta decreases
     by kappa_soc."""
     o = ctx.o
     rr = R.on & ~P.free
     d = nw.d
-    soc0 = SOC(jnp.zeros((), jnp.int32),
-               amax * nw.c + resto_resid(P, R, first.g, first.s, R.p + amax * d.dp, R.n + amax * d.dn), first.theta,
-               active, jnp.zeros((), bool), jnp.zeros((), bool), amax, d, first.f, first.g, first.s)
+    soc0 = SOC(
+        jnp.zeros((), jnp.int32),
+        amax * nw.c + resto_resid(P, R, first.g, first.s, R.p + amax * d.dp, R.n + amax * d.dn),
+        first.theta,
+        active,
+        jnp.zeros((), bool),
+        jnp.zeros((), bool),
+        amax,
+        d,
+        first.f,
+        first.g,
+        first.s,
+    )
 
     def body(Q):
         d_s = corrected_direction(ctx, P, nw, Q.csoc)
@@ -186,12 +224,32 @@ def second_order_correction(ctx: Context, P: Prob, G: Globalization, it: Iterate
     return lax.while_loop(lambda Q: Q.active, body, soc0)
 
 
-def backtrack(ctx: Context, P: Prob, G: Globalization, it: Iterate, R: Resto, mu, d: Direction, ref: Reference,
-              amax, a_min, first: Trial, start) -> Backtrack:
+def backtrack(
+    ctx: Context,
+    P: Prob,
+    G: Globalization,
+    it: Iterate,
+    R: Resto,
+    mu,
+    d: Direction,
+    ref: Reference,
+    amax,
+    a_min,
+    first: Trial,
+    start,
+) -> Backtrack:
     """Halve alpha from alpha_max / 2 until a trial is acceptable, below a_min or out of trials."""
     o = ctx.o
-    ls0 = Backtrack(0.5 * amax, jnp.ones((), jnp.int32), jnp.zeros((), bool), jnp.zeros((), bool),
-                    first.f, first.g, first.s, (0.5 * amax < a_min) & start)
+    ls0 = Backtrack(
+        0.5 * amax,
+        jnp.ones((), jnp.int32),
+        jnp.zeros((), bool),
+        jnp.zeros((), bool),
+        first.f,
+        first.g,
+        first.s,
+        (0.5 * amax < a_min) & start,
+    )
 
     def body(L):
         t = trial_at(ctx, P, it, R, mu, L.a, d)
@@ -227,8 +285,19 @@ def line_search(ctx: Context, P: Prob, S: State, nw: Newton, mu, tau, nupd) -> L
     acc1 = (acc1 | tiny) & ~W.skip_first
     # second-order corrections only if the first trial did not reduce theta
     soc = second_order_correction(
-        ctx, P, S.gl, it, R, mu, tau, nw, ref, amax, first,
-        (~acc1) & (first.theta >= theta_k) & ok_step & (o.max_soc > 0) & ~in_wd & ~W.skip_first)
+        ctx,
+        P,
+        S.gl,
+        it,
+        R,
+        mu,
+        tau,
+        nw,
+        ref,
+        amax,
+        first,
+        (~acc1) & (first.theta >= theta_k) & ok_step & (o.max_soc > 0) & ~in_wd & ~W.skip_first,
+    )
     start_bt = (~acc1) & (~soc.acc) & ok_step & ~in_wd
     ls = backtrack(ctx, P, S.gl, it, R, mu, d, ref, amax, a_min, first, start_bt)
 
@@ -247,5 +316,24 @@ def line_search(ctx: Context, P: Prob, S: State, nw: Newton, mu, tau, nupd) -> L
     f_new = jnp.where(acc1, first.f, jnp.where(use_soc, soc.f, ls.f))
     g_new = jnp.where(acc1, first.g, jnp.where(use_soc, soc.g, ls.g))
     n_trials = 1 + soc.p + jnp.where(use_bt | (~accepted), ls.t - 1, 0)
-    return LineSearch(accepted, a_pr, amax, ftype, d_taken, f_new, g_new, n_trials, use_soc, tiny, theta_k, phi_k,
-                      gd, ref, W, start_wd, in_wd, wd_tentative, wd_reset)
+    return LineSearch(
+        accepted,
+        a_pr,
+        amax,
+        ftype,
+        d_taken,
+        f_new,
+        g_new,
+        n_trials,
+        use_soc,
+        tiny,
+        theta_k,
+        phi_k,
+        gd,
+        ref,
+        W,
+        start_wd,
+        in_wd,
+        wd_tentative,
+        wd_reset,
+    )

@@ -88,17 +88,17 @@ class IPMOptions:
     jacobian_regularization_value: float = 1e-8
     jacobian_regularization_exponent: float = 0.25
     max_inertia_trials: int = 60
-    degen_iters_max: int = 3        # IPOPT's degeneracy test: iterations before a part is declared degenerate
+    degen_iters_max: int = 3  # IPOPT's degeneracy test: iterations before a part is declared degenerate
     # linear algebra: adaptive iterative refinement (IPOPT's names and defaults)
     min_refinement_steps: int = 1
     max_refinement_steps: int = 10
     residual_ratio_max: float = 1e-10
     # feasibility restoration (Sec. 3.3): the l1 restoration problem (see state.Resto)
     max_resto_iter: int = 3000000
-    kappa_resto: float = 0.9                    # IPOPT's required_infeasibility_reduction
-    resto_penalty_parameter: float = 1000.0     # rho
-    resto_proximity_weight: float = 1.0         # eta = weight * sqrt(mu)
-    resto_theta_max_fact: float = 1e8           # IPOPT's resto.theta_max_fact
+    kappa_resto: float = 0.9  # IPOPT's required_infeasibility_reduction
+    resto_penalty_parameter: float = 1000.0  # rho
+    resto_proximity_weight: float = 1.0  # eta = weight * sqrt(mu)
+    resto_theta_max_fact: float = 1e8  # IPOPT's resto.theta_max_fact
     bound_mult_reset_threshold: float = 1000.0
     # output
     print_level: int = 0
@@ -116,22 +116,64 @@ class IPMOptions:
 
 _NONNEG = ("bound_relax_factor",)
 _POSITIVE = (
-    "tol", "s_max", "constr_viol_tol", "dual_inf_tol", "compl_inf_tol", "acceptable_tol",
-    "acceptable_constr_viol_tol", "acceptable_dual_inf_tol", "acceptable_compl_inf_tol", "mu_init",
-    "kappa_eps", "bound_push", "bound_frac", "slack_bound_push", "slack_bound_frac",
-    "bound_mult_init_val", "nlp_scaling_max_gradient", "nlp_scaling_min_value", "kappa_sigma",
-    "theta_max_fact", "theta_min_fact", "gamma_theta", "gamma_phi", "delta", "eta_phi",
-    "alpha_min_frac", "first_hessian_perturbation", "min_hessian_perturbation",
-    "max_hessian_perturbation", "perturb_inc_fact_first", "perturb_inc_fact",
-    "jacobian_regularization_value", "obj_scaling_factor", "residual_ratio_max",
-    "resto_penalty_parameter", "resto_proximity_weight", "resto_theta_max_fact", "bound_mult_reset_threshold",
+    "tol",
+    "s_max",
+    "constr_viol_tol",
+    "dual_inf_tol",
+    "compl_inf_tol",
+    "acceptable_tol",
+    "acceptable_constr_viol_tol",
+    "acceptable_dual_inf_tol",
+    "acceptable_compl_inf_tol",
+    "mu_init",
+    "kappa_eps",
+    "bound_push",
+    "bound_frac",
+    "slack_bound_push",
+    "slack_bound_frac",
+    "bound_mult_init_val",
+    "nlp_scaling_max_gradient",
+    "nlp_scaling_min_value",
+    "kappa_sigma",
+    "theta_max_fact",
+    "theta_min_fact",
+    "gamma_theta",
+    "gamma_phi",
+    "delta",
+    "eta_phi",
+    "alpha_min_frac",
+    "first_hessian_perturbation",
+    "min_hessian_perturbation",
+    "max_hessian_perturbation",
+    "perturb_inc_fact_first",
+    "perturb_inc_fact",
+    "jacobian_regularization_value",
+    "obj_scaling_factor",
+    "residual_ratio_max",
+    "resto_penalty_parameter",
+    "resto_proximity_weight",
+    "resto_theta_max_fact",
+    "bound_mult_reset_threshold",
 )
 _OPEN_UNIT = ("kappa_mu", "tau_min", "perturb_dec_fact", "kappa_soc", "kappa_resto")
-_NONNEG_INT = ("acceptable_iter", "max_soc", "min_refinement_steps", "max_refinement_steps", "print_level",
-               "degen_iters_max", "watchdog_shortened_iter_trigger")
+_NONNEG_INT = (
+    "acceptable_iter",
+    "max_soc",
+    "min_refinement_steps",
+    "max_refinement_steps",
+    "print_level",
+    "degen_iters_max",
+    "watchdog_shortened_iter_trigger",
+)
 
-_POS_INT = ("max_iter", "max_ls_trials", "filter_size", "max_inertia_trials", "max_resto_iter",
-            "watchdog_trial_iter_max")
+_POS_INT = (
+    "max_iter",
+    "max_ls_trials",
+    "filter_size",
+    "max_inertia_trials",
+    "max_resto_iter",
+    "watchdog_trial_iter_max",
+)
 SCALING_METHODS = ("gradient-based", "none")
 
 
@@ -164,13 +206,16 @@ def validate(o: IPMOptions) -> None:
     if not o.s_phi > 1.0:
         raise ValueError(f"IPMOptions.s_phi must be > 1, got {o.s_phi!r}")
     if not 0.0 < o.jacobian_regularization_exponent < 1.0:
-        raise ValueError("IPMOptions.jacobian_regularization_exponent must lie in (0, 1), "
-                         f"got {o.jacobian_regularization_exponent!r}")
+        raise ValueError(
+            "IPMOptions.jacobian_regularization_exponent must lie in (0, 1), "
+            f"got {o.jacobian_regularization_exponent!r}"
+        )
     if o.bound_frac > 0.5 or o.slack_bound_frac > 0.5:
         raise ValueError("IPMOptions.bound_frac and slack_bound_frac must be <= 0.5")
     if o.nlp_scaling_method not in SCALING_METHODS:
-        raise ValueError(f"IPMOptions.nlp_scaling_method must be one of {SCALING_METHODS}, "
-                         f"got {o.nlp_scaling_method!r}")
+        raise ValueError(
+            f"IPMOptions.nlp_scaling_method must be one of {SCALING_METHODS}, got {o.nlp_scaling_method!r}"
+        )
     if o.min_hessian_perturbation >= o.max_hessian_perturbation:
         raise ValueError("IPMOptions.min_hessian_perturbation must be < max_hessian_perturbation")
     if not isinstance(o.keep_history, bool):

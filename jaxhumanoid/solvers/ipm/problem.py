@@ -24,12 +24,13 @@ from jaxhumanoid.solvers.ipm.state import Prob, Solution, State
 class Context(NamedTuple):
     """What every part of the method reads and none changes: the NLP, the static structure of
     its KKT matrix, the options (float fields possibly traced) and the sparsity patterns."""
+
     nlp: Any
     st: kkt.KKTStructure
     o: IPMOptions
-    jr: np.ndarray      # (nnz_jac,) Jacobian rows / columns
+    jr: np.ndarray  # (nnz_jac,) Jacobian rows / columns
     jc: np.ndarray
-    hr: np.ndarray      # (nnz_hess,) Hessian rows / columns (lower triangle)
+    hr: np.ndarray  # (nnz_hess,) Hessian rows / columns (lower triangle)
     hc: np.ndarray
 
     @property
@@ -42,9 +43,15 @@ class Context(NamedTuple):
 
 
 def make_context(nlp, o: IPMOptions) -> Context:
-    return Context(nlp, kkt.structure_of(nlp), o, np.asarray(nlp.jac_rows, np.int64),
-                   np.asarray(nlp.jac_cols, np.int64), np.asarray(nlp.hess_rows, np.int64),
-                   np.asarray(nlp.hess_cols, np.int64))
+    return Context(
+        nlp,
+        kkt.structure_of(nlp),
+        o,
+        np.asarray(nlp.jac_rows, np.int64),
+        np.asarray(nlp.jac_cols, np.int64),
+        np.asarray(nlp.hess_rows, np.int64),
+        np.asarray(nlp.hess_cols, np.int64),
+    )
 
 
 def segsum(vals, idx, size):
@@ -99,8 +106,10 @@ def theta_of(P: Prob, g, s):
 
 def masks(ctx: Context, P: Prob):
     """Hessian and Jacobian entries that enter K (fixed variables and free rows drop out)."""
-    return (jnp.where(P.fixed[ctx.hr] | P.fixed[ctx.hc], 0.0, 1.0),
-            jnp.where(P.free[ctx.jr] | P.fixed[ctx.jc], 0.0, 1.0))
+    return (
+        jnp.where(P.fixed[ctx.hr] | P.fixed[ctx.hc], 0.0, 1.0),
+        jnp.where(P.free[ctx.jr] | P.fixed[ctx.jc], 0.0, 1.0),
+    )
 
 
 def relax(b, mask, sign, factor):
@@ -116,11 +125,13 @@ def scaling(ctx: Context, x0, fixed, p):
         g0 = ctx.nlp.grad(x0, p)
         j0 = ctx.nlp.jac_values(x0, p)
         gmax = jnp.max(jnp.abs(jnp.where(fixed, 0.0, g0)), initial=0.0)
-        sf = jnp.maximum(o.nlp_scaling_min_value,
-                         jnp.minimum(1.0, o.nlp_scaling_max_gradient / jnp.maximum(gmax, 1e-300)))
+        sf = jnp.maximum(
+            o.nlp_scaling_min_value, jnp.minimum(1.0, o.nlp_scaling_max_gradient / jnp.maximum(gmax, 1e-300))
+        )
         rmax = jnp.zeros(m).at[ctx.jr].max(jnp.abs(j0))
-        sg = jnp.maximum(o.nlp_scaling_min_value,
-                         jnp.minimum(1.0, o.nlp_scaling_max_gradient / jnp.maximum(rmax, 1e-300)))
+        sg = jnp.maximum(
+            o.nlp_scaling_min_value, jnp.minimum(1.0, o.nlp_scaling_max_gradient / jnp.maximum(rmax, 1e-300))
+        )
         sf = jnp.where(jnp.isfinite(sf), sf, 1.0) * o.obj_scaling_factor
         sg = jnp.where(jnp.isfinite(sg), sg, 1.0)
     else:
@@ -171,6 +182,18 @@ def unscale(S: State, P: Prob):
 def solution(ctx: Context, S: State, P: Prob) -> Solution:
     """The final state in the user's units (``unscale``) with the unscaled evaluations."""
     x, lam, zl, zu, f = unscale(S, P)
-    return Solution(x=x, lam=lam, zl=zl, zu=zu, f=f, g=S.ev.g / P.sg, grad=S.ev.grad / P.sf,
-                    jac=S.ev.jac / P.sg[ctx.jr], status=S.status, k=S.k, hist=S.hist,
-                    resto_iters=S.resto_iters, fixed=P.fixed)
+    return Solution(
+        x=x,
+        lam=lam,
+        zl=zl,
+        zu=zu,
+        f=f,
+        g=S.ev.g / P.sg,
+        grad=S.ev.grad / P.sf,
+        jac=S.ev.jac / P.sg[ctx.jr],
+        status=S.status,
+        k=S.k,
+        hist=S.hist,
+        resto_iters=S.resto_iters,
+        fixed=P.fixed,
+    )

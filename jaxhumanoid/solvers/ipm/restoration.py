@@ -51,8 +51,9 @@ def merit(o: IPMOptions, P: Prob, R: Resto, f, g, x, s, pv, nv, mu):
     rho sum(p + n) + eta/2 ||D_R (x - x_R)||^2 (bounds of x, s, p, n)."""
     rr = R.on & ~P.free
     theta = jnp.sum(jnp.abs(resto_resid(P, R, g, s, pv, nv)))
-    f_r = (o.resto_penalty_parameter * jnp.sum(jnp.where(rr, pv + nv, 0.0))
-           + 0.5 * jnp.sum(prox_weight(o, R, mu) * (x - R.xR) ** 2))
+    f_r = o.resto_penalty_parameter * jnp.sum(jnp.where(rr, pv + nv, 0.0)) + 0.5 * jnp.sum(
+        prox_weight(o, R, mu) * (x - R.xR) ** 2
+    )
     pn = jnp.where(rr, pv, 1.0), jnp.where(rr, nv, 1.0)
     bar_pn = jnp.sum(jnp.where(rr, -mu * (jnp.log(pn[0]) + jnp.log(pn[1])) + KAPPA_D * mu * (pn[0] + pn[1]), 0.0))
     phi = barrier_phi(P, jnp.where(R.on, f_r, f), x, s, mu) + bar_pn
@@ -70,8 +71,13 @@ def pn_take_step(o: IPMOptions, R: Resto, rr, a_pr, a_du, dp, dn, dzp, dzn, mu) 
     """p, n and their multipliers after an accepted step (primal a_pr, dual a_du, safeguard (16))."""
     p_n = jnp.where(rr, R.p + a_pr * dp, R.p)
     n_n = jnp.where(rr, R.n + a_pr * dn, R.n)
-    return R._replace(fresh=jnp.zeros((), bool), p=p_n, n=n_n, zp=clip_mult(o, R.zp + a_du * dzp, p_n, rr, mu),
-                      zn=clip_mult(o, R.zn + a_du * dzn, n_n, rr, mu))
+    return R._replace(
+        fresh=jnp.zeros((), bool),
+        p=p_n,
+        n=n_n,
+        zp=clip_mult(o, R.zp + a_du * dzp, p_n, rr, mu),
+        zn=clip_mult(o, R.zn + a_du * dzn, n_n, rr, mu),
+    )
 
 
 def enter_restoration(ctx: Context, P: Prob, S: State, mu, theta_k, phi_k) -> State:
@@ -89,15 +95,39 @@ def enter_restoration(ctx: Context, P: Prob, S: State, mu, theta_k, phi_k) -> St
     nv = a + jnp.sqrt(a * a + c0 * mu_r / (2.0 * rho))
     pv = c0 + nv
     nv, pv = jnp.where(rows, nv, 1.0), jnp.where(rows, pv, 1.0)
-    R = Resto(on=jnp.ones((), bool), fresh=jnp.ones((), bool), p=pv, n=nv, zp=jnp.where(rows, mu_r / pv, 0.0),
-              zn=jnp.where(rows, mu_r / nv, 0.0), xR=it.x,
-              dr=jnp.where(P.fixed, 0.0, 1.0 / jnp.maximum(1.0, jnp.abs(it.x)) ** 2),
-              s0=it.s, z0=(it.zl, it.zu, it.vl, it.vu), mu_orig=mu, theta_ref=theta_k, phi_ref=phi_k,
-              inf_ref=inf0, outer=S.gl)
-    it_r = Iterate(it.x, it.s, jnp.zeros(ctx.m), jnp.minimum(rho, it.zl), jnp.minimum(rho, it.zu),
-                   jnp.minimum(rho, it.vl), jnp.minimum(rho, it.vu))
-    return S._replace(it=it_r, rs=R, mu=mu_r, n_acceptable=jnp.zeros((), jnp.int32),
-                      gl=fresh_globalization(o.filter_size, o.theta_min_fact, o.resto_theta_max_fact))
+    R = Resto(
+        on=jnp.ones((), bool),
+        fresh=jnp.ones((), bool),
+        p=pv,
+        n=nv,
+        zp=jnp.where(rows, mu_r / pv, 0.0),
+        zn=jnp.where(rows, mu_r / nv, 0.0),
+        xR=it.x,
+        dr=jnp.where(P.fixed, 0.0, 1.0 / jnp.maximum(1.0, jnp.abs(it.x)) ** 2),
+        s0=it.s,
+        z0=(it.zl, it.zu, it.vl, it.vu),
+        mu_orig=mu,
+        theta_ref=theta_k,
+        phi_ref=phi_k,
+        inf_ref=inf0,
+        outer=S.gl,
+    )
+    it_r = Iterate(
+        it.x,
+        it.s,
+        jnp.zeros(ctx.m),
+        jnp.minimum(rho, it.zl),
+        jnp.minimum(rho, it.zu),
+        jnp.minimum(rho, it.vl),
+        jnp.minimum(rho, it.vu),
+    )
+    return S._replace(
+        it=it_r,
+        rs=R,
+        mu=mu_r,
+        n_acceptable=jnp.zeros((), jnp.int32),
+        gl=fresh_globalization(o.filter_size, o.theta_min_fact, o.resto_theta_max_fact),
+    )
 
 
 def restoration_done(o: IPMOptions, P: Prob, R: Resto, f, g, x, s):

@@ -13,32 +13,49 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
-HIST_FIELDS = ("obj", "inf_pr", "inf_du", "mu", "d_norm", "reg", "alpha_du", "alpha_pr", "ls",
-               "kind", "compl", "resto_iters", "n_fact", "mode", "res_ratio")
+HIST_FIELDS = (
+    "obj",
+    "inf_pr",
+    "inf_du",
+    "mu",
+    "d_norm",
+    "reg",
+    "alpha_du",
+    "alpha_pr",
+    "ls",
+    "kind",
+    "compl",
+    "resto_iters",
+    "n_fact",
+    "mode",
+    "res_ratio",
+)
 INT_FIELDS = ("ls", "kind", "resto_iters", "n_fact", "mode")
 
 
 class Prob(NamedTuple):
     """Per-instance numeric data of the scaled problem (everything a batch may vary)."""
+
     p: Any
-    xl: jax.Array       # (n,) relaxed variable bounds
+    xl: jax.Array  # (n,) relaxed variable bounds
     xu: jax.Array
-    gl: jax.Array       # (m,) relaxed, scaled constraint bounds
+    gl: jax.Array  # (m,) relaxed, scaled constraint bounds
     gu: jax.Array
-    hxl: jax.Array      # (n,) finite lower bound on x (not fixed)
+    hxl: jax.Array  # (n,) finite lower bound on x (not fixed)
     hxu: jax.Array
-    fixed: jax.Array    # (n,) xl == xu
-    eq: jax.Array       # (m,) gl == gu
-    hsl: jax.Array      # (m,) inequality row with finite lower bound
+    fixed: jax.Array  # (n,) xl == xu
+    eq: jax.Array  # (m,) gl == gu
+    hsl: jax.Array  # (m,) inequality row with finite lower bound
     hsu: jax.Array
-    free: jax.Array     # (m,) inequality row without finite bounds
-    sf: jax.Array       # () objective scaling
-    sg: jax.Array       # (m,) constraint scaling
+    free: jax.Array  # (m,) inequality row without finite bounds
+    sf: jax.Array  # () objective scaling
+    sg: jax.Array  # (m,) constraint scaling
 
 
 class Iterate(NamedTuple):
     """Primal-dual iterate: x (n,), slacks s (m,), multipliers y (m,), bound multipliers of x
     (zl, zu: (n,)) and of s (vl, vu: (m,))."""
+
     x: jax.Array
     s: jax.Array
     y: jax.Array
@@ -49,45 +66,54 @@ class Iterate(NamedTuple):
 
 
 class Evals(NamedTuple):
-    f: jax.Array        # () scaled objective
-    g: jax.Array        # (m,) scaled constraints
-    grad: jax.Array     # (n,) scaled gradient
-    jac: jax.Array      # (nnz_jac,) scaled Jacobian values
+    f: jax.Array  # () scaled objective
+    g: jax.Array  # (m,) scaled constraints
+    grad: jax.Array  # (n,) scaled gradient
+    jac: jax.Array  # (nnz_jac,) scaled Jacobian values
 
 
 class Globalization(NamedTuple):
     """The filter (Sec. 2.3) and the inertia correction's memory (Sec. 3.1) of the problem being
     solved; the restoration phase starts its own and stashes the original problem's."""
-    filt_theta: jax.Array   # (F,) filter entries (theta, phi), +inf where unused
+
+    filt_theta: jax.Array  # (F,) filter entries (theta, phi), +inf where unused
     filt_phi: jax.Array
-    filt_n: jax.Array       # () entries added (the ring buffer's write position mod F)
+    filt_n: jax.Array  # () entries added (the ring buffer's write position mod F)
     theta_min: jax.Array
     theta_max: jax.Array
-    dw_last: jax.Array      # () the last nonzero delta_w of Algorithm IC
-    pert: jax.Array         # (3,) IPOPT's degeneracy test state, see inertia.finalize_test
+    dw_last: jax.Array  # () the last nonzero delta_w of Algorithm IC
+    pert: jax.Array  # (3,) IPOPT's degeneracy test state, see inertia.finalize_test
 
 
 def fresh_globalization(size: int, theta_min, theta_max) -> Globalization:
     """An empty filter of ``size`` entries and no perturbation history."""
     inf = jnp.full(size, jnp.inf)
-    return Globalization(inf, inf, jnp.zeros((), jnp.int32), jnp.asarray(theta_min, float),
-                         jnp.asarray(theta_max, float), jnp.zeros(()), jnp.zeros(3, jnp.int32))
+    return Globalization(
+        inf,
+        inf,
+        jnp.zeros((), jnp.int32),
+        jnp.asarray(theta_min, float),
+        jnp.asarray(theta_max, float),
+        jnp.zeros(()),
+        jnp.zeros(3, jnp.int32),
+    )
 
 
 class Resto(NamedTuple):
     """Restoration-phase variables and what the return to the original problem needs."""
-    on: jax.Array           # the iteration is solving the restoration problem
-    fresh: jax.Array        # its first iteration (no barrier update then, as IPOPT)
-    p: jax.Array            # (m,) positive / negative parts of c(x, s), rows with p, n: ~free
+
+    on: jax.Array  # the iteration is solving the restoration problem
+    fresh: jax.Array  # its first iteration (no barrier update then, as IPOPT)
+    p: jax.Array  # (m,) positive / negative parts of c(x, s), rows with p, n: ~free
     n: jax.Array
-    zp: jax.Array           # (m,) their bound multipliers
+    zp: jax.Array  # (m,) their bound multipliers
     zn: jax.Array
-    xR: jax.Array           # (n,) reference point of the proximity term
-    dr: jax.Array           # (n,) diagonal of D_R^2 = 1/max(1, |x_R|)^2 (0 when not in restoration)
-    s0: jax.Array           # slacks and bound multipliers where the restoration started
+    xR: jax.Array  # (n,) reference point of the proximity term
+    dr: jax.Array  # (n,) diagonal of D_R^2 = 1/max(1, |x_R|)^2 (0 when not in restoration)
+    s0: jax.Array  # slacks and bound multipliers where the restoration started
     z0: tuple
-    mu_orig: jax.Array      # the original problem's mu, reference point, filter and
-    theta_ref: jax.Array    # regularisation, stashed for the return
+    mu_orig: jax.Array  # the original problem's mu, reference point, filter and
+    theta_ref: jax.Array  # regularisation, stashed for the return
     phi_ref: jax.Array
     inf_ref: jax.Array
     outer: Globalization
@@ -95,17 +121,40 @@ class Resto(NamedTuple):
 
 def resto_off(R: Resto) -> Resto:
     """The inactive restoration state (p = n = 1 keep the masked logarithms finite)."""
-    return R._replace(on=jnp.zeros((), bool), fresh=jnp.zeros((), bool), p=jnp.ones_like(R.p),
-                      n=jnp.ones_like(R.n), zp=jnp.zeros_like(R.zp), zn=jnp.zeros_like(R.zn),
-                      dr=jnp.zeros_like(R.dr))
+    return R._replace(
+        on=jnp.zeros((), bool),
+        fresh=jnp.zeros((), bool),
+        p=jnp.ones_like(R.p),
+        n=jnp.ones_like(R.n),
+        zp=jnp.zeros_like(R.zp),
+        zn=jnp.zeros_like(R.zn),
+        dr=jnp.zeros_like(R.dr),
+    )
 
 
 def inactive_resto(n: int, m: int, filter_size: int) -> Resto:
     """The restoration state of a solve that has not entered the restoration phase."""
     zm, zn = jnp.zeros(m), jnp.zeros(n)
     z0 = jnp.zeros(())
-    return resto_off(Resto(z0 > 0, z0 > 0, zm, zm, zm, zm, zn, zn, zm, (zn, zn, zm, zm), z0, z0, z0, z0,
-                           fresh_globalization(filter_size, 0.0, 0.0)))
+    return resto_off(
+        Resto(
+            z0 > 0,
+            z0 > 0,
+            zm,
+            zm,
+            zm,
+            zm,
+            zn,
+            zn,
+            zm,
+            (zn, zn, zm, zm),
+            z0,
+            z0,
+            z0,
+            z0,
+            fresh_globalization(filter_size, 0.0, 0.0),
+        )
+    )
 
 
 class Watchdog(NamedTuple):
@@ -113,20 +162,22 @@ class Watchdog(NamedTuple):
     consecutive shortened steps, full steps are taken tentatively (up to
     ``watchdog_trial_iter_max``) and judged against the point where the watchdog started; if
     none is acceptable, the iterate goes back there and backtracks from half the step."""
-    shortened: jax.Array    # consecutive shortened steps
+
+    shortened: jax.Array  # consecutive shortened steps
     on: jax.Array
     trials: jax.Array
     it: Iterate
     ev: Evals
-    theta: jax.Array        # merit and directional derivative at the watchdog's start
+    theta: jax.Array  # merit and directional derivative at the watchdog's start
     phi: jax.Array
     gd: jax.Array
-    skip_first: jax.Array   # backtrack without trying the full step (after a watchdog reset)
+    skip_first: jax.Array  # backtrack without trying the full step (after a watchdog reset)
 
 
 class State(NamedTuple):
     """Loop state of the IPM; ``status`` holds a ``Status`` code (``Status.Running`` until a
     termination test fires)."""
+
     it: Iterate
     ev: Evals
     mu: jax.Array
@@ -136,18 +187,19 @@ class State(NamedTuple):
     gl: Globalization
     n_acceptable: jax.Array
     tiny_count: jax.Array
-    cur_acc: jax.Array      # the current iterate passes the acceptable-level tests
-    acc_it: Iterate         # the last acceptable iterate (IPOPT's fallback when the line search
-    acc_ev: Evals           # and restoration fail, Sec. 3.3) and its evaluations
+    cur_acc: jax.Array  # the current iterate passes the acceptable-level tests
+    acc_it: Iterate  # the last acceptable iterate (IPOPT's fallback when the line search
+    acc_ev: Evals  # and restoration fail, Sec. 3.3) and its evaluations
     has_acc: jax.Array
     resto_iters: jax.Array
     rs: Resto
     wd: Watchdog
-    hist: dict              # HIST_FIELDS -> (H,) arrays, row k = iteration k
+    hist: dict  # HIST_FIELDS -> (H,) arrays, row k = iteration k
 
 
 class StepInfo(NamedTuple):
     """What one iteration adds to the history (IPOPT's log columns and the step's internals)."""
+
     mu: jax.Array
     d_norm: jax.Array
     reg: jax.Array
@@ -168,6 +220,7 @@ def tree_where(cond, a, b):
 
 class Direction(NamedTuple):
     """A primal-dual search direction: dx (n,), ds, dy, and the restoration phase's dp, dn (m,)."""
+
     dx: jax.Array
     ds: jax.Array
     dy: jax.Array
@@ -180,6 +233,7 @@ class Solution(NamedTuple):
     multipliers lam (m,) (IPOPT's sign convention), objective f, constraints g (m,), gradient
     grad (n,) and Jacobian values jac at x, the ``Status`` code, the iteration count k, the
     history arrays, the restoration iterations and the mask of fixed variables."""
+
     x: jax.Array
     lam: jax.Array
     zl: jax.Array

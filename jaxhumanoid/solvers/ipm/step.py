@@ -25,8 +25,9 @@ from jaxhumanoid.solvers.ipm.state import Evals, Iterate, Prob
 
 def refinement(o: IPMOptions):
     """Iterative refinement settings of ``kkt.solve`` (keyword arguments)."""
-    return dict(min_steps=o.min_refinement_steps, max_steps=o.max_refinement_steps,
-                residual_ratio_max=o.residual_ratio_max)
+    return dict(
+        min_steps=o.min_refinement_steps, max_steps=o.max_refinement_steps, residual_ratio_max=o.residual_ratio_max
+    )
 
 
 def sigmas(P: Prob, it: Iterate):
@@ -105,14 +106,10 @@ def frac_to_boundary(P: Prob, x, s, dx, ds, tau):
     """Largest alpha in (0, 1] keeping x, s strictly inside their bounds, (15)."""
     dxl, dxu, dsl, dsu = slacks(P, x, s)
     a = jnp.ones(())
-    a = jnp.minimum(a, jnp.min(jnp.where(P.hxl & (dx < 0), -tau * dxl / jnp.where(dx < 0, dx, -1.0), 1.0),
-                               initial=1.0))
-    a = jnp.minimum(a, jnp.min(jnp.where(P.hxu & (dx > 0), tau * dxu / jnp.where(dx > 0, dx, 1.0), 1.0),
-                               initial=1.0))
-    a = jnp.minimum(a, jnp.min(jnp.where(P.hsl & (ds < 0), -tau * dsl / jnp.where(ds < 0, ds, -1.0), 1.0),
-                               initial=1.0))
-    a = jnp.minimum(a, jnp.min(jnp.where(P.hsu & (ds > 0), tau * dsu / jnp.where(ds > 0, ds, 1.0), 1.0),
-                               initial=1.0))
+    a = jnp.minimum(a, jnp.min(jnp.where(P.hxl & (dx < 0), -tau * dxl / jnp.where(dx < 0, dx, -1.0), 1.0), initial=1.0))
+    a = jnp.minimum(a, jnp.min(jnp.where(P.hxu & (dx > 0), tau * dxu / jnp.where(dx > 0, dx, 1.0), 1.0), initial=1.0))
+    a = jnp.minimum(a, jnp.min(jnp.where(P.hsl & (ds < 0), -tau * dsl / jnp.where(ds < 0, ds, -1.0), 1.0), initial=1.0))
+    a = jnp.minimum(a, jnp.min(jnp.where(P.hsu & (ds > 0), tau * dsu / jnp.where(ds > 0, ds, 1.0), 1.0), initial=1.0))
     return a
 
 
@@ -130,8 +127,12 @@ def clip_mult(o: IPMOptions, z, d, mask, mu):
 def kappa_sigma_reset(o: IPMOptions, P: Prob, x, s, zl, zu, vl, vu, mu):
     """Safeguard (16): keep z_i (x_i - xl_i) within [mu/kappa_sigma, kappa_sigma mu]."""
     dxl, dxu, dsl, dsu = slacks(P, x, s)
-    return (clip_mult(o, zl, dxl, P.hxl, mu), clip_mult(o, zu, dxu, P.hxu, mu),
-            clip_mult(o, vl, dsl, P.hsl, mu), clip_mult(o, vu, dsu, P.hsu, mu))
+    return (
+        clip_mult(o, zl, dxl, P.hxl, mu),
+        clip_mult(o, zu, dxu, P.hxu, mu),
+        clip_mult(o, vl, dsl, P.hsl, mu),
+        clip_mult(o, vu, dsu, P.hsu, mu),
+    )
 
 
 def ls_multipliers(ctx: Context, P: Prob, it: Iterate, ev: Evals):
@@ -144,6 +145,9 @@ def ls_multipliers(ctx: Context, P: Prob, it: Iterate, ev: Evals):
     a = jnp.where(P.fixed, 0.0, ev.grad - it.zl + it.zu)
     b = jnp.where(ineq_b, -it.vl + it.vu, 0.0)
     _, y = kkt.solve(ctx.st, fac, A, B, -a, -b, **refinement(ctx.o))
-    good = (kkt.inertia_ok(ctx.st, fac) & jnp.all(jnp.isfinite(y))
-            & (jnp.max(jnp.abs(y), initial=0.0) <= ctx.o.constr_mult_init_max))
+    good = (
+        kkt.inertia_ok(ctx.st, fac)
+        & jnp.all(jnp.isfinite(y))
+        & (jnp.max(jnp.abs(y), initial=0.0) <= ctx.o.constr_mult_init_max)
+    )
     return jnp.where(good & ~P.free, y, 0.0)

@@ -24,14 +24,15 @@ from jaxhumanoid.solvers.status import Status
 
 class Errors(NamedTuple):
     """Optimality errors (5) of the problem being solved (scalars)."""
-    E0: jax.Array       # E_0 and E_mu (scaled problem)
+
+    E0: jax.Array  # E_0 and E_mu (scaled problem)
     Emu: jax.Array
-    dual: jax.Array     # dual infeasibility, constraint violation (of the restoration problem in
-    primal: jax.Array   # its phase) and complementarity, scaled
+    dual: jax.Array  # dual infeasibility, constraint violation (of the restoration problem in
+    primal: jax.Array  # its phase) and complementarity, scaled
     compl: jax.Array
-    pr_s: jax.Array     # the original problem's constraint violation, scaled and unscaled
+    pr_s: jax.Array  # the original problem's constraint violation, scaled and unscaled
     pr_u: jax.Array
-    du_u: jax.Array     # dual infeasibility and complementarity in the user's units
+    du_u: jax.Array  # dual infeasibility and complementarity in the user's units
     co_u: jax.Array
 
 
@@ -47,8 +48,9 @@ def errors(ctx: Context, P: Prob, it: Iterate, ev: Evals, mu, R: Resto) -> Error
     gLx = jnp.where(P.fixed, 0.0, gf + jt_mult(ctx, ev.jac, y) - it.zl + it.zu)
     gLs = jnp.where(P.hsl | P.hsu, -y - it.vl + it.vu, 0.0)
     gLpn = jnp.where(rr, jnp.maximum(jnp.abs(rho - y - R.zp), jnp.abs(rho + y - R.zn)), 0.0)
-    dual = jnp.maximum(jnp.maximum(jnp.max(jnp.abs(gLx), initial=0.0), jnp.max(jnp.abs(gLs), initial=0.0)),
-                       jnp.max(gLpn, initial=0.0))
+    dual = jnp.maximum(
+        jnp.maximum(jnp.max(jnp.abs(gLx), initial=0.0), jnp.max(jnp.abs(gLs), initial=0.0)), jnp.max(gLpn, initial=0.0)
+    )
     c_orig = constr_resid(P, ev.g, s)
     primal = jnp.max(jnp.abs(resto_resid(P, R, ev.g, s, R.p, R.n)), initial=0.0)
 
@@ -56,21 +58,44 @@ def errors(ctx: Context, P: Prob, it: Iterate, ev: Evals, mu, R: Resto) -> Error
         return jnp.max(jnp.where(mask, jnp.abs(v), 0.0), initial=0.0)
 
     def compl(m_):
-        return jnp.max(jnp.stack([cmax(dxl * it.zl - m_, P.hxl), cmax(dxu * it.zu - m_, P.hxu),
-                                  cmax(dsl * it.vl - m_, P.hsl), cmax(dsu * it.vu - m_, P.hsu),
-                                  cmax(R.p * R.zp - m_, rr), cmax(R.n * R.zn - m_, rr)]))
+        return jnp.max(
+            jnp.stack(
+                [
+                    cmax(dxl * it.zl - m_, P.hxl),
+                    cmax(dxu * it.zu - m_, P.hxu),
+                    cmax(dsl * it.vl - m_, P.hsl),
+                    cmax(dsu * it.vu - m_, P.hsu),
+                    cmax(R.p * R.zp - m_, rr),
+                    cmax(R.n * R.zn - m_, rr),
+                ]
+            )
+        )
 
     nz = (jnp.sum(P.hxl) + jnp.sum(P.hxu) + jnp.sum(P.hsl) + jnp.sum(P.hsu) + 2 * jnp.sum(rr)).astype(float)
-    z1 = (jnp.sum(jnp.abs(it.zl)) + jnp.sum(jnp.abs(it.zu)) + jnp.sum(jnp.abs(it.vl)) + jnp.sum(jnp.abs(it.vu))
-          + jnp.sum(jnp.where(rr, R.zp + R.zn, 0.0)))
+    z1 = (
+        jnp.sum(jnp.abs(it.zl))
+        + jnp.sum(jnp.abs(it.zu))
+        + jnp.sum(jnp.abs(it.vl))
+        + jnp.sum(jnp.abs(it.vu))
+        + jnp.sum(jnp.where(rr, R.zp + R.zn, 0.0))
+    )
     sd = jnp.maximum(o.s_max, (jnp.sum(jnp.abs(y)) + z1) / jnp.maximum(1.0, ctx.m + nz)) / o.s_max
     sc = jnp.maximum(o.s_max, z1 / jnp.maximum(1.0, nz)) / o.s_max
     c0 = compl(0.0)
     E0 = jnp.maximum(jnp.maximum(dual / sd, primal), c0 / sc)
     Emu = jnp.maximum(jnp.maximum(dual / sd, primal), compl(mu) / sc)
     pr_s = jnp.max(jnp.abs(c_orig), initial=0.0)
-    return Errors(E0=E0, Emu=Emu, dual=dual, primal=primal, compl=c0, pr_s=pr_s,
-                  pr_u=jnp.max(jnp.abs(c_orig) / P.sg, initial=0.0), du_u=dual / P.sf, co_u=c0 / P.sf)
+    return Errors(
+        E0=E0,
+        Emu=Emu,
+        dual=dual,
+        primal=primal,
+        compl=c0,
+        pr_s=pr_s,
+        pr_u=jnp.max(jnp.abs(c_orig) / P.sg, initial=0.0),
+        du_u=dual / P.sf,
+        co_u=c0 / P.sf,
+    )
 
 
 def first_applicable(rules, default):
@@ -81,32 +106,51 @@ def first_applicable(rules, default):
     return jnp.asarray(out).astype(jnp.int32)
 
 
-def decide_status(prior, finite, converged, resto_converged, resto_code, acceptable_stop, tiny_stop,
-                  acceptable_point, out_of_iterations):
+def decide_status(
+    prior,
+    finite,
+    converged,
+    resto_converged,
+    resto_code,
+    acceptable_stop,
+    tiny_stop,
+    acceptable_point,
+    out_of_iterations,
+):
     """The loop's status after an iteration, in priority order: a status the iteration itself
     set (``prior``), non-finite evaluations, convergence, a converged restoration problem
     (``resto_code``), the acceptable level held long enough, a step too small at the smallest
     mu (at an acceptable point or not), the iteration limits; else Running."""
-    return first_applicable([
-        (prior != Status.Running, prior),
-        (~finite, Status.Invalid_Number_Detected),
-        (converged, Status.Solve_Succeeded),
-        (resto_converged, resto_code),
-        (acceptable_stop, Status.Solved_To_Acceptable_Level),
-        (tiny_stop, jnp.where(acceptable_point, Status.Solved_To_Acceptable_Level,
-                              Status.Search_Direction_Becomes_Too_Small)),
-        (out_of_iterations, Status.Maximum_Iterations_Exceeded),
-    ], Status.Running)
+    return first_applicable(
+        [
+            (prior != Status.Running, prior),
+            (~finite, Status.Invalid_Number_Detected),
+            (converged, Status.Solve_Succeeded),
+            (resto_converged, resto_code),
+            (acceptable_stop, Status.Solved_To_Acceptable_Level),
+            (
+                tiny_stop,
+                jnp.where(
+                    acceptable_point, Status.Solved_To_Acceptable_Level, Status.Search_Direction_Becomes_Too_Small
+                ),
+            ),
+            (out_of_iterations, Status.Maximum_Iterations_Exceeded),
+        ],
+        Status.Running,
+    )
 
 
 def step_status(stop_acceptable, resto_failed, ok_step):
     """The status one iteration sets itself: a failed line search at an acceptable point (or a
     rollback to one) stops at the acceptable level; a failed restoration phase ends it."""
-    return first_applicable([
-        (stop_acceptable, Status.Solved_To_Acceptable_Level),
-        (resto_failed & ok_step, Status.Restoration_Failed),
-        (resto_failed, Status.Error_In_Step_Computation),
-    ], Status.Running)
+    return first_applicable(
+        [
+            (stop_acceptable, Status.Solved_To_Acceptable_Level),
+            (resto_failed & ok_step, Status.Restoration_Failed),
+            (resto_failed, Status.Error_In_Step_Computation),
+        ],
+        Status.Running,
+    )
 
 
 def check(ctx: Context, P: Prob, S: State, info: StepInfo, status) -> State:
@@ -115,26 +159,53 @@ def check(ctx: Context, P: Prob, S: State, info: StepInfo, status) -> State:
     err = errors(ctx, P, S.it, S.ev, S.mu, S.rs)
     k = S.k
     resto = S.rs.on
-    conv = ((err.E0 <= o.tol) & (err.pr_u <= o.constr_viol_tol) & (err.du_u <= o.dual_inf_tol)
-            & (err.co_u <= o.compl_inf_tol)) & ~resto
-    acc_pt = ((err.E0 <= o.acceptable_tol) & (err.pr_u <= o.acceptable_constr_viol_tol)
-              & (err.du_u <= o.acceptable_dual_inf_tol) & (err.co_u <= o.acceptable_compl_inf_tol))
+    conv = (
+        (o.tol >= err.E0)
+        & (err.pr_u <= o.constr_viol_tol)
+        & (err.du_u <= o.dual_inf_tol)
+        & (err.co_u <= o.compl_inf_tol)
+    ) & ~resto
+    acc_pt = (
+        (o.acceptable_tol >= err.E0)
+        & (err.pr_u <= o.acceptable_constr_viol_tol)
+        & (err.du_u <= o.acceptable_dual_inf_tol)
+        & (err.co_u <= o.acceptable_compl_inf_tol)
+    )
     n_acc = jnp.where(acc_pt, S.n_acceptable + 1, 0).astype(jnp.int32)
     # the restoration problem itself converged (or stalled at an acceptable point) without
     # reaching a point the outer filter accepts: local infeasibility, unless it is feasible
-    resto_conv = resto & ((err.E0 <= o.tol) | ((n_acc >= o.acceptable_iter) & (o.acceptable_iter > 0)))
+    resto_conv = resto & ((o.tol >= err.E0) | ((n_acc >= o.acceptable_iter) & (o.acceptable_iter > 0)))
     resto_code = jnp.where(err.pr_s > 1e2 * o.tol, Status.Infeasible_Problem_Detected, Status.Restoration_Failed)
-    finite = (jnp.isfinite(S.ev.f) & jnp.all(jnp.isfinite(S.ev.g)) & jnp.all(jnp.isfinite(S.ev.grad))
-              & jnp.all(jnp.isfinite(S.ev.jac)))
+    finite = (
+        jnp.isfinite(S.ev.f)
+        & jnp.all(jnp.isfinite(S.ev.g))
+        & jnp.all(jnp.isfinite(S.ev.grad))
+        & jnp.all(jnp.isfinite(S.ev.jac))
+    )
     tiny_stop = (S.tiny_count >= 2) & (S.mu <= mu_floor(o, P) * 1.0000001)
-    new_status = decide_status(status, finite, conv, resto_conv, resto_code,
-                               (n_acc >= o.acceptable_iter) & (o.acceptable_iter > 0) & ~resto, tiny_stop,
-                               acc_pt, (k >= o.max_iter) | (S.resto_iters > o.max_resto_iter))
+    new_status = decide_status(
+        status,
+        finite,
+        conv,
+        resto_conv,
+        resto_code,
+        (n_acc >= o.acceptable_iter) & (o.acceptable_iter > 0) & ~resto,
+        tiny_stop,
+        acc_pt,
+        (k >= o.max_iter) | (S.resto_iters > o.max_resto_iter),
+    )
     hist = S.hist
     if o.keep_history:
         row = dict(obj=S.ev.f / P.sf, inf_pr=err.pr_u, inf_du=err.dual, compl=err.compl, **info._asdict())
         hist = {key: hist[key].at[k].set(jnp.asarray(row[key]).astype(hist[key].dtype)) for key in HIST_FIELDS}
     keep = acc_pt & finite & ~resto
-    return S._replace(done=new_status != Status.Running, status=new_status, n_acceptable=n_acc, hist=hist,
-                      cur_acc=keep, acc_it=tree_where(keep, S.it, S.acc_it), acc_ev=tree_where(keep, S.ev, S.acc_ev),
-                      has_acc=S.has_acc | keep)
+    return S._replace(
+        done=new_status != Status.Running,
+        status=new_status,
+        n_acceptable=n_acc,
+        hist=hist,
+        cur_acc=keep,
+        acc_it=tree_where(keep, S.it, S.acc_it),
+        acc_ev=tree_where(keep, S.ev, S.acc_ev),
+        has_acc=S.has_acc | keep,
+    )

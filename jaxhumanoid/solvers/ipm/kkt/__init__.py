@@ -40,13 +40,40 @@ matrix is formed. The package, in the order of the data flow:
   equilibrated residual (IPOPT's rule).
 """
 
-from jaxhumanoid.solvers.ipm.kkt.assembly import (add_diagonal, assemble, dense_matrix, equilibrate, from_blocks,
-                                                  matvec, scale_blocks, to_blocks)
+from jaxhumanoid.solvers.ipm.kkt.assembly import (
+    add_diagonal,
+    assemble,
+    dense_matrix,
+    equilibrate,
+    from_blocks,
+    matvec,
+    scale_blocks,
+    to_blocks,
+)
 from jaxhumanoid.solvers.ipm.kkt.elimination import Factor, factor, inertia_ok, negative_caps, pivot_paths
 from jaxhumanoid.solvers.ipm.kkt.pivot import QD_GAMMA
 from jaxhumanoid.solvers.ipm.kkt.structure import KKTStructure, build_structure, structure_of
 from jaxhumanoid.solvers.ipm.kkt.substitution import border_coupling, solve, solve_vec
 
-__all__ = ["QD_GAMMA", "Factor", "KKTStructure", "add_diagonal", "assemble", "border_coupling", "build_structure",
-           "dense_matrix", "equilibrate", "factor", "from_blocks", "inertia_ok", "matvec", "negative_caps",
-           "pivot_paths", "scale_blocks", "solve", "solve_vec", "structure_of", "to_blocks"]
+__all__ = [
+    "QD_GAMMA",
+    "Factor",
+    "KKTStructure",
+    "add_diagonal",
+    "assemble",
+    "border_coupling",
+    "build_structure",
+    "dense_matrix",
+    "equilibrate",
+    "factor",
+    "from_blocks",
+    "inertia_ok",
+    "matvec",
+    "negative_caps",
+    "pivot_paths",
+    "scale_blocks",
+    "solve",
+    "solve_vec",
+    "structure_of",
+    "to_blocks",
+]

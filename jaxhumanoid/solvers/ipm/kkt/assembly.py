@@ -20,13 +20,21 @@ def assemble(st: KKTStructure, hess_vals, jac_vals, diag_x, diag_c):
     the padding rows get their +-1. Returns A, B of shape (S, nb, nb)."""
     S, nb = st.S, st.nb
     flat = jnp.zeros(2 * S * nb * nb + 1, dtype=jnp.result_type(float))
-    idx = np.concatenate([st.hess_t1, st.hess_t2, st.jac_t1, st.jac_t2, st.var_diag_t,
-                          st.con_diag_t, st.pad_diag_t])
-    vals = jnp.concatenate([hess_vals, hess_vals, jac_vals, jac_vals, diag_x, diag_c,
-                            jnp.asarray(st.pad_sign, dtype=jnp.result_type(float))])
+    idx = np.concatenate([st.hess_t1, st.hess_t2, st.jac_t1, st.jac_t2, st.var_diag_t, st.con_diag_t, st.pad_diag_t])
+    vals = jnp.concatenate(
+        [
+            hess_vals,
+            hess_vals,
+            jac_vals,
+            jac_vals,
+            diag_x,
+            diag_c,
+            jnp.asarray(st.pad_sign, dtype=jnp.result_type(float)),
+        ]
+    )
     flat = flat.at[idx].add(vals)
     A = flat[: S * nb * nb].reshape(S, nb, nb)
-    B = flat[S * nb * nb: 2 * S * nb * nb].reshape(S, nb, nb)
+    B = flat[S * nb * nb : 2 * S * nb * nb].reshape(S, nb, nb)
     return A, B
 
 
@@ -49,8 +57,8 @@ def equilibrate(A, B, passes: int = 2):
     for _ in range(passes):
         As, Bs = scale_blocks(A, B, d)
         aB = jnp.abs(Bs)
-        rmax = jnp.maximum(jnp.max(jnp.abs(As), axis=2), jnp.max(aB, axis=1))    # A_k rows, B_k^T rows
-        rmax = rmax.at[1:].max(jnp.max(aB[:-1], axis=2))                          # B_{k-1} rows
+        rmax = jnp.maximum(jnp.max(jnp.abs(As), axis=2), jnp.max(aB, axis=1))  # A_k rows, B_k^T rows
+        rmax = rmax.at[1:].max(jnp.max(aB[:-1], axis=2))  # B_{k-1} rows
         d = d / jnp.sqrt(jnp.where((rmax > 0) & jnp.isfinite(rmax), rmax, 1.0))
     return d
 
@@ -75,11 +83,11 @@ def equilibrate_compact(st: KKTStructure, A, B, passes: int = 2):
     for i in range(passes):
         if i == 0:
             ra, br, bc = jnp.max(aA, axis=2), jnp.max(aB, axis=2), jnp.max(aB, axis=1)
-        else:                               # max_j |d_i K_ij d_j| = d_i max_j |K_ij| d_j
+        else:  # max_j |d_i K_ij d_j| = d_i max_j |K_ij| d_j
             dn = jnp.concatenate([d[1:], jnp.ones_like(d[:1])], axis=0)
             ra = d * jnp.max(aA * d[:, None, :], axis=2)
-            br = dn[:, rb] * jnp.max(aB * d[:, None, cb], axis=2)      # rows of block k+1
-            bc = d[:, cb] * jnp.max(aB * dn[:, rb, None], axis=1)      # columns of block k
+            br = dn[:, rb] * jnp.max(aB * d[:, None, cb], axis=2)  # rows of block k+1
+            bc = d[:, cb] * jnp.max(aB * dn[:, rb, None], axis=1)  # columns of block k
         rmax = ra.at[:, cb].max(bc)
         rmax = rmax.at[1:, rb].max(br[:-1])
         d = d / jnp.sqrt(jnp.where((rmax > 0) & jnp.isfinite(rmax), rmax, 1.0))
@@ -90,8 +98,8 @@ def equilibrate_compact(st: KKTStructure, A, B, passes: int = 2):
 def matvec(A, B, u):
     """K u for the block-tridiagonal K given by (A, B), u of shape (S, nb)."""
     y = jnp.einsum("kij,kj->ki", A, u)
-    low = jnp.einsum("kij,kj->ki", B[:-1], u[:-1])     # B_k u_k into block k+1
-    up = jnp.einsum("kji,kj->ki", B[:-1], u[1:])       # B_k^T u_{k+1} into block k
+    low = jnp.einsum("kij,kj->ki", B[:-1], u[:-1])  # B_k u_k into block k+1
+    up = jnp.einsum("kji,kj->ki", B[:-1], u[1:])  # B_k^T u_{k+1} into block k
     y = y.at[1:].add(low)
     y = y.at[:-1].add(up)
     return y
@@ -127,8 +135,8 @@ def dense_matrix(st: KKTStructure, A, B):
     A = np.asarray(A)
     B = np.asarray(B)
     for k in range(S):
-        K[k * nb:(k + 1) * nb, k * nb:(k + 1) * nb] = A[k]
+        K[k * nb : (k + 1) * nb, k * nb : (k + 1) * nb] = A[k]
         if k + 1 < S:
-            K[(k + 1) * nb:(k + 2) * nb, k * nb:(k + 1) * nb] = B[k]
-            K[k * nb:(k + 1) * nb, (k + 1) * nb:(k + 2) * nb] = B[k].T
+            K[(k + 1) * nb : (k + 2) * nb, k * nb : (k + 1) * nb] = B[k]
+            K[k * nb : (k + 1) * nb, (k + 1) * nb : (k + 2) * nb] = B[k].T
     return K

@@ -30,37 +30,37 @@ from jaxhumanoid.solvers.ipm.kkt.structure import KKTStructure, static_index, st
 
 
 class Factor(NamedTuple):
-    N: jax.Array        # (S, nb, nb) and (S, nb): the inverses of the pivot blocks D_k of the
-    sgn: jax.Array      # equilibrated K as D_k^{-1} = N_k diag(sgn_k) N_k^T, sgn_k = +-1; [0] is
-                        # the border block's (eliminated last, see ``factor``)
-    L: jax.Array        # (S, r, nb) rows b_rows of L_{k+1,k} = B_k D_k^{-1} (the others are
-                        # zero); [0] is zero (block 0 is the border, see ``factor``)
-    npos: jax.Array     # inertia of K (padding removed)
+    N: jax.Array  # (S, nb, nb) and (S, nb): the inverses of the pivot blocks D_k of the
+    sgn: jax.Array  # equilibrated K as D_k^{-1} = N_k diag(sgn_k) N_k^T, sgn_k = +-1; [0] is
+    # the border block's (eliminated last, see ``factor``)
+    L: jax.Array  # (S, r, nb) rows b_rows of L_{k+1,k} = B_k D_k^{-1} (the others are
+    # zero); [0] is zero (block 0 is the border, see ``factor``)
+    npos: jax.Array  # inertia of K (padding removed)
     nneg: jax.Array
-    nzero: jax.Array    # numerically zero (or non-finite) eigenvalues: K singular
-    d: jax.Array        # (S, nb) symmetric equilibration: the factors are of diag(d) K diag(d)
+    nzero: jax.Array  # numerically zero (or non-finite) eigenvalues: K singular
+    d: jax.Array  # (S, nb) symmetric equilibration: the factors are of diag(d) K diag(d)
 
 
 class _Scaled(NamedTuple):
-    A: jax.Array        # (S, nb, nb) equilibrated diagonal blocks
-    Bs: jax.Array       # (S, r, c) equilibrated nonzero part B_k[b_rows, b_cols]
-    pre: tuple          # ``qd_diag_pre(A, nbx)`` where the diagonal-R fast path applies, else ()
+    A: jax.Array  # (S, nb, nb) equilibrated diagonal blocks
+    Bs: jax.Array  # (S, r, c) equilibrated nonzero part B_k[b_rows, b_cols]
+    pre: tuple  # ``qd_diag_pre(A, nbx)`` where the diagonal-R fast path applies, else ()
 
 
 class _Blocks(NamedTuple):
-    N: jax.Array        # (S-1, nb, nb) pivot factors of blocks 1..S-1
-    sgn: jax.Array      # (S-1, nb)
-    L: jax.Array        # (S-1, r, nb) rows b_rows of L_{k+1,k}
-    X: jax.Array        # (S-1, nb, r) border couplings X_k
-    info: jax.Array     # (S-1, 3) [nneg, nzero, path]
+    N: jax.Array  # (S-1, nb, nb) pivot factors of blocks 1..S-1
+    sgn: jax.Array  # (S-1, nb)
+    L: jax.Array  # (S-1, r, nb) rows b_rows of L_{k+1,k}
+    X: jax.Array  # (S-1, nb, r) border couplings X_k
+    info: jax.Array  # (S-1, 3) [nneg, nzero, path]
 
 
 class _Loop(NamedTuple):
-    k: jax.Array        # () int32, the next block
-    C: jax.Array        # (r, r) fill of block k on the rows b_rows
-    X: jax.Array        # (nb, r) border coupling X_k
-    cnt: jax.Array      # (3,) int64 (npos, nneg, nzero) of the blocks done, padding included
-    dead: jax.Array     # () bool: the blocks done rule out inertia (n, m, 0)
+    k: jax.Array  # () int32, the next block
+    C: jax.Array  # (r, r) fill of block k on the rows b_rows
+    X: jax.Array  # (nb, r) border coupling X_k
+    cnt: jax.Array  # (3,) int64 (npos, nneg, nzero) of the blocks done, padding included
+    dead: jax.Array  # () bool: the blocks done rule out inertia (n, m, 0)
     out: _Blocks
 
 
@@ -130,13 +130,14 @@ def _eliminate(st: KKTStructure, sc: _Scaled, k, C, X, diag_r, fast, rel_zero_to
     if diag_r:
         pb, qt, rd = (v[k] for v in sc.pre)
         Nq, okq = qd_diag_core(pb.at[rr].add(-C), qt, rd)
-        Nk, sk, info = choose_pivot(okq, Nq, functools.partial(_filled_block, rr=rr), (sc.A[k], C),
-                                    rel_zero_tol, nb - nbx)
+        Nk, sk, info = choose_pivot(
+            okq, Nq, functools.partial(_filled_block, rr=rr), (sc.A[k], C), rel_zero_tol, nb - nbx
+        )
     else:
         Nk, sk, info = pivot(_filled_block(sc.A[k], C, rr), nbx, fast, rel_zero_tol)
-    Lk = ((bs @ Nk[cb]) * sk) @ Nk.T                    # B_k D_k^{-1} on rows b_rows (r x nb)
-    Cn = jnp.einsum("ij,kj->ik", Lk[:, cb], bs)         # B_k D_k^{-1} B_k^T (lower part read)
-    Xn = jnp.einsum("ar,sr->as", X, Lk[:, rb])          # X_{k+1} = -X_k D_k^{-1} B_k^T
+    Lk = ((bs @ Nk[cb]) * sk) @ Nk.T  # B_k D_k^{-1} on rows b_rows (r x nb)
+    Cn = jnp.einsum("ij,kj->ik", Lk[:, cb], bs)  # B_k D_k^{-1} B_k^T (lower part read)
+    Xn = jnp.einsum("ar,sr->as", X, Lk[:, rb])  # X_{k+1} = -X_k D_k^{-1} B_k^T
     return Cn, Xn, Nk, sk, Lk, info
 
 
@@ -155,7 +156,7 @@ def _block_loop(st: KKTStructure, sc: _Scaled, diag_r, fast, rel_zero_tol, early
     def decided(cnt, k):
         return (cnt[2] > 0) | (cnt[0] > pos_cap) | (cnt[1] > neg_cap[k])
 
-    X1 = jnp.zeros((r_, nb), A.dtype).at[:, cb].set(Bs[0]).T   # B_0^T: block 0 is the border
+    X1 = jnp.zeros((r_, nb), A.dtype).at[:, cb].set(Bs[0]).T  # B_0^T: block 0 is the border
     C0 = jnp.zeros((r_, r_), dtype=A.dtype)
     N_s, sg_s, info_s = (jnp.broadcast_to(a, (S - 1,) + a.shape) for a in _skipped(nb, A.dtype))
     out = _Blocks(N_s, sg_s, jnp.zeros((S - 1, r_, nb), A.dtype), jnp.zeros((S - 1, nb, r_), A.dtype), info_s)
@@ -178,7 +179,7 @@ def _border_schur(st: KKTStructure, A0, blocks: _Blocks):
     """D_0 = A_0 - sum_{k>=1} X_k D_k^{-1} X_k^T (nb, nb), with D_k^{-1} read on (b_rows, b_rows)."""
     rb = static_index(st.b_rows)
     XN = jnp.einsum("kar,krj->kaj", blocks.X, blocks.N[:, rb])
-    Z = jnp.einsum("kaj,kj,kbj->ab", XN, blocks.sgn, XN)        # sum_k X_k D_k^{-1}[rb, rb] X_k^T
+    Z = jnp.einsum("kaj,kj,kbj->ab", XN, blocks.sgn, XN)  # sum_k X_k D_k^{-1}[rb, rb] X_k^T
     return A0 - Z
 
 
@@ -187,7 +188,7 @@ def _factor(st: KKTStructure, A, B, rel_zero_tol, fast, early_exit=False):
     """(Factor, pivot paths (S,) int32) of K = (A, B); see ``factor``. Jitted with the structure
     static (hashed by identity): repeated calls, and the several call sites in one IPM trace,
     reuse one traced and compiled factorisation."""
-    d, A, Bs = equilibrate_compact(st, A, B)     # Bs: (S, r, c) nonzero part of the B_k
+    d, A, Bs = equilibrate_compact(st, A, B)  # Bs: (S, r, c) nonzero part of the B_k
     if rel_zero_tol is None:
         rel_zero_tol = 10.0 * st.nb * float(np.finfo(np.float64).eps)
     nbx, nb, S = st.nbx, st.nb, st.S
@@ -224,8 +225,9 @@ def _factor(st: KKTStructure, A, B, rel_zero_tol, fast, early_exit=False):
     return Factor(Nf, sg, L, npos - st.n_pad_pos, nneg - st.n_pad_neg, nzero, d), paths
 
 
-def factor(st: KKTStructure, A, B, rel_zero_tol: float | None = None, fast: bool = True,
-           early_exit: bool = False) -> Factor:
+def factor(
+    st: KKTStructure, A, B, rel_zero_tol: float | None = None, fast: bool = True, early_exit: bool = False
+) -> Factor:
     """Block LDL^T of K = (A, B) (each (S, nb, nb)) with the exact inertia of K.
 
     K is first equilibrated. The blocks are eliminated in the order 1, 2, ..., S-1 and then 0:

@@ -104,15 +104,15 @@ def quasidefinite_block(Dk, nbx, gamma=QD_GAMMA):
     nc = nb - nbx
     eye_c = jnp.eye(nc, dtype=Dk.dtype)
     Lmi = _tri_inv(jnp.linalg.cholesky(eye_c - gamma * R))
-    V = Lmi @ Q                                   # Q^T M^{-1} Q = V^T V
-    Qt = Lmi.T @ V                                # Q~ = M^{-1} Q
+    V = Lmi @ Q  # Q^T M^{-1} Q = V^T V
+    Qt = Lmi.T @ V  # Q~ = M^{-1} Q
     Pt = P + gamma * (V.T @ V + Qt.T @ Qt)
     Lpi = _tri_inv(jnp.linalg.cholesky(0.5 * (Pt + Pt.T)))
     W = Qt @ Lpi.T
-    Sc = W @ W.T - R                              # minus the Schur complement
+    Sc = W @ W.T - R  # minus the Schur complement
     Lsi = _tri_inv(jnp.linalg.cholesky(0.5 * (Sc + Sc.T)))
-    Gp = Lpi.T @ W.T                              # P~^{-1} Q~^T  (nbx x nc)
-    IE = jnp.concatenate([jnp.eye(nbx, dtype=Dk.dtype), gamma * Qt], axis=0)     # [I; E]
+    Gp = Lpi.T @ W.T  # P~^{-1} Q~^T  (nbx x nc)
+    IE = jnp.concatenate([jnp.eye(nbx, dtype=Dk.dtype), gamma * Qt], axis=0)  # [I; E]
     N1 = IE @ Lpi.T
     N2 = (jnp.concatenate([jnp.zeros((nbx, nc), Dk.dtype), eye_c], axis=0) - IE @ Gp) @ Lsi.T
     N = jnp.concatenate([N1, N2], axis=1)
@@ -133,7 +133,7 @@ def qd_diag_pre(A, nbx, gamma=QD_GAMMA):
     m = 1.0 - gamma * r
     h = gamma * (1.0 / m + 1.0 / (m * m))
     Pb = P + jnp.einsum("kci,kc,kcj->kij", Q, h, Q)
-    Pb = jnp.where(jnp.all(m > 0, axis=1)[:, None, None], Pb, jnp.nan)   # M not positive definite
+    Pb = jnp.where(jnp.all(m > 0, axis=1)[:, None, None], Pb, jnp.nan)  # M not positive definite
     Rd = r[:, :, None] * jnp.eye(r.shape[1], dtype=A.dtype)
     return Pb, Q / m[:, :, None], Rd
 
@@ -154,10 +154,10 @@ def qd_diag_core(Pt, Qt, Rd, gamma=QD_GAMMA):
     then N."""
     nbx = Pt.shape[0]
     Lpi = _tri_inv(_chol(Pt))
-    W = jnp.einsum("ij,kj->ik", Qt, Lpi)                      # Q~ Lp^{-T}
+    W = jnp.einsum("ij,kj->ik", Qt, Lpi)  # Q~ Lp^{-T}
     Lsi = _tri_inv(_chol(jnp.einsum("ij,kj->ik", W, W) - Rd))
-    G1t = jnp.concatenate([Lpi, -((Lsi @ W) @ Lpi)], axis=0).T   # first block column of F^{-1}, transposed
-    N = jnp.concatenate([G1t, gamma * (Qt @ G1t)], axis=0)       # N = M^T
+    G1t = jnp.concatenate([Lpi, -((Lsi @ W) @ Lpi)], axis=0).T  # first block column of F^{-1}, transposed
+    N = jnp.concatenate([G1t, gamma * (Qt @ G1t)], axis=0)  # N = M^T
     N = N.at[nbx:, nbx:].add(Lsi.T)
     return N, jnp.isfinite(N[0, 0]) & jnp.isfinite(N[-1, -1])
 
@@ -173,7 +173,7 @@ def choose_pivot(ok, Nq, build, parts, rel_zero_tol, nneg_fast):
     otherwise goes member by member (``lax.map``), so that only the members that need it are
     decomposed."""
     nb = Nq.shape[-1]
-    info_fast = np.array([nneg_fast, 0, 0], np.int64)      # constants: custom_vmap closes over no tracer
+    info_fast = np.array([nneg_fast, 0, 0], np.int64)  # constants: custom_vmap closes over no tracer
     sgn_fast = np.concatenate([np.ones(nb - nneg_fast), -np.ones(nneg_fast)])
 
     def slow(parts_):
@@ -185,11 +185,12 @@ def choose_pivot(ok, Nq, build, parts, rel_zero_tol, nneg_fast):
 
     @choose.def_vmap
     def _batched(axis_size, in_batched, ok, Nq, parts_):
-        ok, Nq, parts_ = jax.tree.map(lambda a, b: a if b else jnp.broadcast_to(a, (axis_size,) + a.shape),
-                                      (ok, Nq, parts_), tuple(in_batched))
+        ok, Nq, parts_ = jax.tree.map(
+            lambda a, b: a if b else jnp.broadcast_to(a, (axis_size,) + a.shape), (ok, Nq, parts_), tuple(in_batched)
+        )
         fast_b = (Nq, jnp.broadcast_to(sgn_fast, (axis_size, nb)), jnp.broadcast_to(info_fast, (axis_size, 3)))
 
-        def mixed():                    # member by member: only those that need it are decomposed
+        def mixed():  # member by member: only those that need it are decomposed
             return lax.map(lambda a: choose(*a), (ok, Nq, parts_))
 
         return lax.cond(jnp.all(ok), lambda: fast_b, mixed), (True, True, True)

@@ -32,20 +32,20 @@ class KKTStructure:
     m: int
     S: int
     nb: int
-    var_pos: np.ndarray      # (n,) position of variable i in the stage-ordered vector (S*nb)
-    con_pos: np.ndarray      # (m,) position of constraint multiplier j
-    pad_pos: np.ndarray      # (n_pad,) padding positions
-    pad_sign: np.ndarray     # (n_pad,) +1 for padding in the primal part, -1 in the dual part
-    nbx: int                 # primal part of every block: local positions [0, nbx)
-    hess_t1: np.ndarray      # (nnz_h,) flat target of K[r, c] for hessian entry (r, c)
-    hess_t2: np.ndarray      # (nnz_h,) flat target of the mirrored entry K[c, r] (or trash)
-    jac_t1: np.ndarray       # (nnz_j,) flat target of K[y_j, x_i]
-    jac_t2: np.ndarray       # (nnz_j,) flat target of K[x_i, y_j] (or trash)
-    var_diag_t: np.ndarray   # (n,) flat target of K[x_i, x_i]
-    con_diag_t: np.ndarray   # (m,) flat target of K[y_j, y_j]
-    pad_diag_t: np.ndarray   # (n_pad,)
-    b_rows: np.ndarray       # (r,) local rows that are structurally nonzero in some B_k (sorted)
-    b_cols: np.ndarray       # (c,) local columns that are structurally nonzero in some B_k
+    var_pos: np.ndarray  # (n,) position of variable i in the stage-ordered vector (S*nb)
+    con_pos: np.ndarray  # (m,) position of constraint multiplier j
+    pad_pos: np.ndarray  # (n_pad,) padding positions
+    pad_sign: np.ndarray  # (n_pad,) +1 for padding in the primal part, -1 in the dual part
+    nbx: int  # primal part of every block: local positions [0, nbx)
+    hess_t1: np.ndarray  # (nnz_h,) flat target of K[r, c] for hessian entry (r, c)
+    hess_t2: np.ndarray  # (nnz_h,) flat target of the mirrored entry K[c, r] (or trash)
+    jac_t1: np.ndarray  # (nnz_j,) flat target of K[y_j, x_i]
+    jac_t2: np.ndarray  # (nnz_j,) flat target of K[x_i, y_j] (or trash)
+    var_diag_t: np.ndarray  # (n,) flat target of K[x_i, x_i]
+    con_diag_t: np.ndarray  # (m,) flat target of K[y_j, y_j]
+    pad_diag_t: np.ndarray  # (n_pad,)
+    b_rows: np.ndarray  # (r,) local rows that are structurally nonzero in some B_k (sorted)
+    b_cols: np.ndarray  # (c,) local columns that are structurally nonzero in some B_k
 
     @property
     def n_pad(self) -> int:
@@ -100,10 +100,12 @@ def _local_layout(vs, cs, S, nbx, nb):
         con_loc[j] = nbx + fc[cs[j]]
         fc[cs[j]] += 1
     nbc = nb - nbx
-    pad_stage = np.concatenate([np.full(nbx - fx[k], k) for k in range(S)]
-                               + [np.full(nbc - fc[k], k) for k in range(S)]).astype(np.int64)
-    pad_loc = np.concatenate([np.arange(fx[k], nbx) for k in range(S)]
-                             + [np.arange(nbx + fc[k], nb) for k in range(S)]).astype(np.int64)
+    pad_stage = np.concatenate(
+        [np.full(nbx - fx[k], k) for k in range(S)] + [np.full(nbc - fc[k], k) for k in range(S)]
+    ).astype(np.int64)
+    pad_loc = np.concatenate(
+        [np.arange(fx[k], nbx) for k in range(S)] + [np.arange(nbx + fc[k], nb) for k in range(S)]
+    ).astype(np.int64)
     pad_sign = np.concatenate([np.ones(int(np.sum(nbx - fx)))] + [-np.ones(int(np.sum(nbc - fc)))])
     return var_loc, con_loc, pad_stage, pad_loc, pad_sign
 
@@ -122,8 +124,10 @@ def _scatter_target(S, nb, sr, lr, sc, lc):
     below = sr == sc + 1
     t[below] = off_b + sc[below] * nbb + lr[below] * nb + lc[below]
     if np.any(np.abs(sr - sc) > 1):
-        raise ValueError("KKT structure: an entry couples stages more than one apart; the "
-                         "stage-ordered KKT matrix must be block-tridiagonal")
+        raise ValueError(
+            "KKT structure: an entry couples stages more than one apart; the "
+            "stage-ordered KKT matrix must be block-tridiagonal"
+        )
     return t
 
 
@@ -141,8 +145,9 @@ def _coupling_support(targets, S, nb):
     return b_rows, b_cols
 
 
-def build_structure(n, m, var_stage, con_stage, hess_rows, hess_cols, jac_rows, jac_cols,
-                    order: str = "auto") -> KKTStructure:
+def build_structure(
+    n, m, var_stage, con_stage, hess_rows, hess_cols, jac_rows, jac_cols, order: str = "auto"
+) -> KKTStructure:
     """Precompute (numpy, once per NLP) the block layout and all scatter targets.
 
     ``order``: which end of the stage chain becomes block 0, the border block that is eliminated
@@ -158,8 +163,7 @@ def build_structure(n, m, var_stage, con_stage, hess_rows, hess_cols, jac_rows, 
     var_stage = np.asarray(var_stage, dtype=np.int64).reshape(-1)
     con_stage = np.asarray(con_stage, dtype=np.int64).reshape(-1)
     if var_stage.size != n or con_stage.size != m:
-        raise ValueError(f"var_stage/con_stage must have sizes n={n}, m={m}, got "
-                         f"{var_stage.size}, {con_stage.size}")
+        raise ValueError(f"var_stage/con_stage must have sizes n={n}, m={m}, got {var_stage.size}, {con_stage.size}")
     if order not in ("auto", "forward", "backward"):
         raise ValueError(f"order must be 'auto', 'forward' or 'backward', got {order!r}")
     vs, cs, S = _compress_stages(var_stage, con_stage) if n + m else (var_stage, con_stage, 1)
@@ -188,13 +192,24 @@ def build_structure(n, m, var_stage, con_stage, hess_rows, hess_cols, jac_rows, 
     b_rows, b_cols = _coupling_support([h1, h2, j1, j2], S, nb)
     nbb = nb * nb
     return KKTStructure(
-        n=n, m=m, S=S, nb=nb,
-        var_pos=vs * nb + var_loc, con_pos=cs * nb + con_loc, pad_pos=pad_stage * nb + pad_loc,
-        pad_sign=pad_sign, nbx=nbx,
-        hess_t1=h1, hess_t2=h2, jac_t1=j1, jac_t2=j2,
-        var_diag_t=vs * nbb + var_loc * (nb + 1), con_diag_t=cs * nbb + con_loc * (nb + 1),
+        n=n,
+        m=m,
+        S=S,
+        nb=nb,
+        var_pos=vs * nb + var_loc,
+        con_pos=cs * nb + con_loc,
+        pad_pos=pad_stage * nb + pad_loc,
+        pad_sign=pad_sign,
+        nbx=nbx,
+        hess_t1=h1,
+        hess_t2=h2,
+        jac_t1=j1,
+        jac_t2=j2,
+        var_diag_t=vs * nbb + var_loc * (nb + 1),
+        con_diag_t=cs * nbb + con_loc * (nb + 1),
         pad_diag_t=pad_stage * nbb + pad_loc * (nb + 1),
-        b_rows=b_rows, b_cols=b_cols,
+        b_rows=b_rows,
+        b_cols=b_cols,
     )
 
 
@@ -205,8 +220,9 @@ def structure_of(nlp) -> KKTStructure:
     """KKTStructure of an ``NLP``, kept in ``nlp.cache``: one object per NLP, so that the jitted
     factorisation and solve (static in the structure, hashed by identity) compile once."""
     if _CACHE_KEY not in nlp.cache:
-        nlp.cache[_CACHE_KEY] = build_structure(nlp.n, nlp.m, nlp.var_stage, nlp.con_stage, nlp.hess_rows,
-                                                nlp.hess_cols, nlp.jac_rows, nlp.jac_cols)
+        nlp.cache[_CACHE_KEY] = build_structure(
+            nlp.n, nlp.m, nlp.var_stage, nlp.con_stage, nlp.hess_rows, nlp.hess_cols, nlp.jac_rows, nlp.jac_cols
+        )
     return nlp.cache[_CACHE_KEY]
 
 

@@ -47,22 +47,22 @@ def solve_vec(st: KKTStructure, fac: Factor, X1t, r):
     r = fac.d * r
     L = fac.L
 
-    def dinv(v):                          # D_k^{-1} v_k, all k at once
+    def dinv(v):  # D_k^{-1} v_k, all k at once
         return apply_inv(fac.N, fac.sgn, v)
 
     if st.S == 1:
         return fac.d * dinv(r)
 
-    def fwd(q, inp):                      # z_k = r_k - L_{k,k-1} z_{k-1}  (q = L_{k,k-1} z_{k-1})
+    def fwd(q, inp):  # z_k = r_k - L_{k,k-1} z_{k-1}  (q = L_{k,k-1} z_{k-1})
         rk, Lk = inp
         zk = rk.at[rb].add(-q)
         return Lk @ zk, zk
 
     _, z = lax.scan(fwd, jnp.zeros((nr,), r.dtype), (r, L))
     w = dinv(z)
-    T = L[:, :, rb]                       # (S, r, r): T_k^T
+    T = L[:, :, rb]  # (S, r, r): T_k^T
 
-    def horner(h, inp):                   # h_k = w_k[rb] - T_k h_{k+1};  sum_k X_k w_k[rb] = X_1 h_1
+    def horner(h, inp):  # h_k = w_k[rb] - T_k h_{k+1};  sum_k X_k w_k[rb] = X_1 h_1
         wk, Tkt = inp
         hk = wk[rb] - jnp.einsum("ji,j->i", Tkt, h)
         return hk, hk
@@ -71,14 +71,14 @@ def solve_vec(st: KKTStructure, fac: Factor, X1t, r):
     v0 = r[0] - jnp.einsum("rn,r->n", X1t, hs[1])
     u0 = apply_inv(fac.N[0], fac.sgn[0], v0)
 
-    def gfwd(g, Tkt):                     # g_k = X_k^T u_0:  g_{k+1} = -T_k^T g_k
+    def gfwd(g, Tkt):  # g_k = X_k^T u_0:  g_{k+1} = -T_k^T g_k
         return -(Tkt @ g), g
 
     _, g = lax.scan(gfwd, X1t @ u0, T[1:])
     gp = jnp.zeros_like(r).at[1:, rb].set(g)
     wc = w - dinv(gp)
 
-    def bwd(unext, inp):                  # u_k = w_k - D_k^{-1} X_k^T u_0 - L_{k+1,k}^T u_{k+1}
+    def bwd(unext, inp):  # u_k = w_k - D_k^{-1} X_k^T u_0 - L_{k+1,k}^T u_{k+1}
         wk, Lk = inp
         uk = wk - jnp.einsum("ri,r->i", Lk, unext[rb])
         return uk, uk
@@ -93,8 +93,18 @@ def refinement_ratio(fac: Factor, u, res, dr):
     return jnp.max(jnp.abs(fac.d * res)) / jnp.maximum(jnp.max(jnp.abs(u / fac.d)) + dr, 1e-300)
 
 
-def solve(st: KKTStructure, fac: Factor, A, B, rx, rc, min_steps: int = 1, max_steps: int = 10,
-          residual_ratio_max: float = 1e-10, with_residual: bool = False):
+def solve(
+    st: KKTStructure,
+    fac: Factor,
+    A,
+    B,
+    rx,
+    rc,
+    min_steps: int = 1,
+    max_steps: int = 10,
+    residual_ratio_max: float = 1e-10,
+    with_residual: bool = False,
+):
     """(dx (n,), dy (m,)) solving K [dx; dy] = [rx; rc] with adaptive iterative refinement (as
     IPOPT's min/max_refinement_steps, residual_ratio_max): u_{i+1} = u_i + K^{-1}(r - K u_i) until
     ``refinement_ratio`` is at most ``residual_ratio_max`` (after at least ``min_steps`` and at
