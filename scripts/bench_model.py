@@ -16,7 +16,7 @@ import jaxhumanoid  # noqa: F401
 from jaxhumanoid.model import contact as ct
 from jaxhumanoid.model import dynamics as dyn
 from jaxhumanoid.model import foot as ft
-from jaxhumanoid.model.params import ContactParams, FootParams, Humanoid
+from jaxhumanoid.model.params import ContactParams, FootParams, PlanarChain
 
 
 def main():
@@ -25,7 +25,7 @@ def main():
     ap.add_argument("--repeats", type=int, default=200)
     ap.add_argument("--out", default="results/bench_model.json")
     args = ap.parse_args()
-    model, foot, contact = Humanoid.paper(), FootParams.paper(), ContactParams.nominal()
+    model, foot, contact = PlanarChain.humanoid(), FootParams.paper(), ContactParams.nominal()
     active = (1, 2, 3, 4, 5)
     rng = np.random.default_rng(0)
     q, qd, qdd, u = (jnp.asarray(rng.normal(size=(args.stages, 5))) for _ in range(4))

@@ -29,7 +29,8 @@ from jaxhumanoid.strategy import solve as strat
 
 
 def sample_weights(task: str, i: int, sigma: float) -> np.ndarray:
-    w = get_task(task).weights.as_array()
+    task = get_task(task)
+    w = task.weights.as_array(task.n)
     if i == 0:
         return w
     return w * np.exp(sigma * np.random.default_rng(i).standard_normal(w.size))

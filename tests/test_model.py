@@ -1,4 +1,7 @@
-"""Physics identities of the humanoid model."""
+"""Physics identities of the paper's humanoid (``PlanarChain.humanoid()``); tests/test_nlinks.py checks
+them for chains of other lengths."""
+
+import dataclasses
 
 import jax
 import jax.numpy as jnp
@@ -10,9 +13,9 @@ from jaxhumanoid.model import contact as ct
 from jaxhumanoid.model import dynamics as dyn
 from jaxhumanoid.model import foot as ft
 from jaxhumanoid.model import kinematics as kin
-from jaxhumanoid.model.params import ContactParams, FootParams, Humanoid
+from jaxhumanoid.model.params import ContactParams, FootParams, PlanarChain
 
-MODEL = Humanoid.paper()
+MODEL = PlanarChain.humanoid()
 FOOT = FootParams.paper()
 NOMINAL = ContactParams.nominal()
 RNG = np.random.default_rng(42)
@@ -230,10 +233,22 @@ def test_parameters_are_differentiable_pytrees():
 @pytest.mark.parametrize(
     "make,field",
     [
-        (lambda: Humanoid(a=[0.4, 0.4, 0.5, 0.3], c=[0.2] * 5, m=[1.0] * 5, inertia=[0.1] * 5, g=9.81), "Humanoid.a"),
-        (lambda: Humanoid(a=[0.4] * 5, c=[0.2] * 5, m=[1.0, -1.0, 1.0, 1.0, 1.0], inertia=[0.1] * 5, g=9.81), "Humanoid.m"),
-        (lambda: Humanoid(a=[0.4] * 5, c=[0.2] * 5, m=[1.0] * 5, inertia=[0.1, np.nan, 0.1, 0.1, 0.1], g=9.81), "Humanoid.inertia"),
-        (lambda: Humanoid(a=[0.4] * 5, c=[0.5] * 5, m=[1.0] * 5, inertia=[0.1] * 5, g=9.81), "Humanoid.c"),
+        (lambda: PlanarChain(a=[0.4, 0.4, 0.5, 0.3], c=[0.2] * 5, m=[1.0] * 5, inertia=[0.1] * 5), "PlanarChain.c"),
+        (lambda: PlanarChain(a=[0.4], c=[0.2], m=[1.0], inertia=[0.1]), "PlanarChain.a"),
+        (lambda: PlanarChain(a=[0.4, -0.4], c=[0.2] * 2, m=[1.0] * 2, inertia=[0.1] * 2), "PlanarChain.a"),
+        (lambda: PlanarChain(a=[0.4] * 5, c=[0.2] * 5, m=[1.0, -1.0, 1.0, 1.0, 1.0], inertia=[0.1] * 5), "PlanarChain.m"),
+        (lambda: PlanarChain(a=[0.4] * 5, c=[0.2] * 5, m=[1.0] * 5, inertia=[0.1, np.nan, 0.1, 0.1, 0.1]),
+         "PlanarChain.inertia"),
+        (lambda: PlanarChain(a=[0.4] * 5, c=[0.5] * 5, m=[1.0] * 5, inertia=[0.1] * 5), "PlanarChain.c"),
+        (lambda: PlanarChain(a=[0.4] * 2, c=[0.2] * 2, m=[1.0] * 2, inertia=[0.1] * 2, g=-1.0), "PlanarChain.g"),
+        (lambda: PlanarChain(a=[0.4] * 3, c=[0.2] * 3, m=[1.0] * 3, inertia=[0.1] * 3, names=("a", "b")),
+         "PlanarChain.names"),
+        (lambda: PlanarChain(a=[0.4] * 3, c=[0.2] * 3, m=[1.0] * 3, inertia=[0.1] * 3, names=("a", "b", "a")),
+         "PlanarChain.names"),
+        (lambda: PlanarChain(a=[0.4] * 2, c=[0.2] * 2, m=[1.0] * 2, inertia=[0.1] * 2, q_min=[0.0, 1.0], q_max=[1.0, 1.0]),
+         "PlanarChain.q_min"),
+        (lambda: PlanarChain(a=[0.4] * 2, c=[0.2] * 2, m=[1.0] * 2, inertia=[0.1] * 2, q_max=[1.0, 1.0, 1.0]),
+         "PlanarChain.q_max"),
         (lambda: ContactParams(kappa=-1.0, f0=200.0, xhat=0.02, mu=1.0), "ContactParams.kappa"),
         (lambda: ContactParams(kappa=1e5, f0="x", xhat=0.02, mu=1.0), "ContactParams.f0"),
         (lambda: FootParams(a0f=0.2, a0b=0.058, ankle_height=0.0), "FootParams.ankle_height"),
@@ -242,3 +257,16 @@ def test_parameters_are_differentiable_pytrees():
 def test_bad_parameters_raise_clear_errors(make, field):
     with pytest.raises(ValueError, match=field.replace(".", r"\.")):
         make()
+
+
+def test_humanoid_is_table_one_with_named_joints_and_ranges():
+    assert MODEL.n == 5 and MODEL.names == ("knee", "hip", "shoulder", "elbow", "hand")
+    assert float(MODEL.total_mass) == pytest.approx(71.04)
+    assert np.all(MODEL.q_min < MODEL.q_max) and MODEL.q_min.shape == MODEL.q_max.shape == (5,)
+    # the names are static: not a leaf, part of the tree structure
+    leaves = jax.tree_util.tree_leaves(MODEL)
+    assert all(isinstance(leaf, np.ndarray) for leaf in leaves) and len(leaves) == 7
+    heavier = dataclasses.replace(MODEL, m=2 * MODEL.m)
+    assert heavier.names == MODEL.names and float(heavier.total_mass) == pytest.approx(2 * 71.04)
+    with pytest.raises(ValueError, match=r"PlanarChain\.m"):
+        dataclasses.replace(MODEL, m=-MODEL.m)

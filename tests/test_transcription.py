@@ -102,4 +102,4 @@ def test_start_postures_are_equilibria_with_foot_margin(key):
         gaps = np.asarray(kin.contact_gaps(pc.model, pc.foot, jnp.asarray(q)))
         others = [i - 1 for i in range(1, 6) if i not in task.active]
         assert np.all(gaps[others] > 0.01)  # clearance joints are off the ground
-        assert np.all((q > tasks.Q_MIN) & (q < tasks.Q_MAX))
+        assert np.all((q > pc.model.q_min) & (q < pc.model.q_max))
