@@ -44,7 +44,10 @@ def main():
         "B": jax.jit(jax.vmap(lambda a: dyn.inertia_matrix(model, a))),
         "all (B, C qd, G, Q with 5 contacts, foot reaction)": jax.jit(jax.vmap(one)),
     }
-    res = {"B": time_fn(fns["B"], q, repeats=args.repeats), "all": time_fn(fns["all (B, C qd, G, Q with 5 contacts, foot reaction)"], q, qd, qdd, u, repeats=args.repeats)}
+    res = {
+        "B": time_fn(fns["B"], q, repeats=args.repeats),
+        "all": time_fn(fns["all (B, C qd, G, Q with 5 contacts, foot reaction)"], q, qd, qdd, u, repeats=args.repeats),
+    }
     print(f"{'function (' + str(args.stages) + ' stages, vmap+jit)':50s} {'median':>10s} {'min':>10s} {'compile':>10s}")
     for k, v in res.items():
         print(f"{k:50s} {v['median_ms'] * 1e3:8.1f}us {v['min_ms'] * 1e3:8.1f}us {v['compile_ms']:8.0f}ms")

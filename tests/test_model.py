@@ -18,6 +18,7 @@ from jaxhumanoid.model.params import ContactParams, FootParams, PlanarChain
 MODEL = PlanarChain.humanoid()
 FOOT = FootParams.paper()
 NOMINAL = ContactParams.nominal()
+ALL = (1, 2, 3, 4, 5)
 RNG = np.random.default_rng(42)
 QS = RNG.uniform(-np.pi, np.pi, size=(50, 5))
 QDS = RNG.normal(size=(50, 5))
@@ -47,7 +48,8 @@ def test_pattern_form_matches_paper_formula_entrywise():
                 if r > l or s > l:
                     continue
                 total = sum(A[l, i] ** 2 for i in range(max(r, s), l + 1))
-                total += sum(A[l, i] * A[l, j] * np.cos(theta[i] - theta[j]) for i in range(r, l + 1) for j in range(s, l + 1) if i != j)
+                total += sum(A[l, i] * A[l, j] * np.cos(theta[i] - theta[j])
+                             for i in range(r, l + 1) for j in range(s, l + 1) if i != j)
                 B[r, s] += MODEL.m[l] * total + MODEL.inertia[l]
     assert np.max(np.abs(B - np.asarray(dyn.inertia_matrix(MODEL, q)))) < 1e-12
 
@@ -77,7 +79,8 @@ def test_euler_lagrange_equations_from_lagrangian():
 
 def test_gravity_is_gradient_of_potential():
     for q in QS[:20]:
-        assert np.max(np.abs(dyn.gravity_vector(MODEL, q) - jax.grad(lambda qq: dyn.potential_energy(MODEL, FOOT, qq))(q))) < 1e-11
+        dV = jax.grad(lambda qq: dyn.potential_energy(MODEL, FOOT, qq))(q)
+        assert np.max(np.abs(dyn.gravity_vector(MODEL, q) - dV)) < 1e-11
 
 
 def _midpoint_energies(q0, h, steps):
@@ -90,7 +93,8 @@ def _midpoint_energies(q0, h, steps):
         q1, qd1 = z[:5], z[5:]
         qb, qdb = 0.5 * (q0 + q1), 0.5 * (qd0 + qd1)
         r_a = q1 - q0 - h * qdb
-        r_b = dyn.inertia_matrix(MODEL, qb) @ (qd1 - qd0) + h * (dyn.coriolis_vector(MODEL, qb, qdb) + dyn.gravity_vector(MODEL, qb))
+        r_b = dyn.inertia_matrix(MODEL, qb) @ (qd1 - qd0) + h * (
+            dyn.coriolis_vector(MODEL, qb, qdb) + dyn.gravity_vector(MODEL, qb))
         return jnp.concatenate([r_a, r_b])
 
     def step(carry, _):
@@ -196,8 +200,9 @@ def _central_fd(fun, x, eps=1e-6):
         ("B", lambda z: dyn.inertia_matrix(MODEL, z[:5]).ravel()),
         ("Cqd", lambda z: dyn.coriolis_vector(MODEL, z[:5], z[5:])),
         ("G", lambda z: dyn.gravity_vector(MODEL, z[:5])),
-        ("Q", lambda z: dyn.generalized_forces(MODEL, z[:5], z[5:], ct.contact_forces(MODEL, FOOT, NOMINAL, z[:5], z[5:], (1, 2, 3, 4, 5)), (1, 2, 3, 4, 5))),
-        ("contact", lambda z: ct.contact_forces(MODEL, FOOT, NOMINAL, z[:5], 0.01 * z[5:], (1, 2, 3, 4, 5)).ravel()),
+        ("Q", lambda z: dyn.generalized_forces(
+            MODEL, z[:5], z[5:], ct.contact_forces(MODEL, FOOT, NOMINAL, z[:5], z[5:], ALL), ALL)),
+        ("contact", lambda z: ct.contact_forces(MODEL, FOOT, NOMINAL, z[:5], 0.01 * z[5:], ALL).ravel()),
         ("foot", lambda z: ft.foot_reaction(MODEL, z[:5], z[5:], z[5:] ** 2, jnp.zeros((0, 2)))),
     ],
 )
@@ -236,7 +241,8 @@ def test_parameters_are_differentiable_pytrees():
         (lambda: PlanarChain(a=[0.4, 0.4, 0.5, 0.3], c=[0.2] * 5, m=[1.0] * 5, inertia=[0.1] * 5), "PlanarChain.c"),
         (lambda: PlanarChain(a=[0.4], c=[0.2], m=[1.0], inertia=[0.1]), "PlanarChain.a"),
         (lambda: PlanarChain(a=[0.4, -0.4], c=[0.2] * 2, m=[1.0] * 2, inertia=[0.1] * 2), "PlanarChain.a"),
-        (lambda: PlanarChain(a=[0.4] * 5, c=[0.2] * 5, m=[1.0, -1.0, 1.0, 1.0, 1.0], inertia=[0.1] * 5), "PlanarChain.m"),
+        (lambda: PlanarChain(a=[0.4] * 5, c=[0.2] * 5, m=[1.0, -1.0, 1.0, 1.0, 1.0], inertia=[0.1] * 5),
+         "PlanarChain.m"),
         (lambda: PlanarChain(a=[0.4] * 5, c=[0.2] * 5, m=[1.0] * 5, inertia=[0.1, np.nan, 0.1, 0.1, 0.1]),
          "PlanarChain.inertia"),
         (lambda: PlanarChain(a=[0.4] * 5, c=[0.5] * 5, m=[1.0] * 5, inertia=[0.1] * 5), "PlanarChain.c"),
@@ -245,7 +251,8 @@ def test_parameters_are_differentiable_pytrees():
          "PlanarChain.names"),
         (lambda: PlanarChain(a=[0.4] * 3, c=[0.2] * 3, m=[1.0] * 3, inertia=[0.1] * 3, names=("a", "b", "a")),
          "PlanarChain.names"),
-        (lambda: PlanarChain(a=[0.4] * 2, c=[0.2] * 2, m=[1.0] * 2, inertia=[0.1] * 2, q_min=[0.0, 1.0], q_max=[1.0, 1.0]),
+        (lambda: PlanarChain(a=[0.4] * 2, c=[0.2] * 2, m=[1.0] * 2, inertia=[0.1] * 2, q_min=[0.0, 1.0],
+                             q_max=[1.0, 1.0]),
          "PlanarChain.q_min"),
         (lambda: PlanarChain(a=[0.4] * 2, c=[0.2] * 2, m=[1.0] * 2, inertia=[0.1] * 2, q_max=[1.0, 1.0, 1.0]),
          "PlanarChain.q_max"),

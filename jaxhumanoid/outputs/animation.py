@@ -125,7 +125,8 @@ def animate(sol, path, fps: float = 15.0, max_frames: int = 60, show_forces: boo
         active, f_contact, foot, cop = _forces_at(sol, times)
         largest = max(float(np.abs(f_contact).max(initial=0.0)), float(np.abs(foot).max(initial=0.0)), 1.0)
         scale = force_scale if force_scale is not None else ARROW_LENGTH_M / largest
-        quiver: dict[str, Any] = {"angles": "xy", "scale_units": "xy", "scale": 1.0 / scale, "width": 0.006, "zorder": 5}
+        quiver: dict[str, Any] = {"angles": "xy", "scale_units": "xy", "scale": 1.0 / scale, "width": 0.006,
+                                  "zorder": 5}
         contact_q = ax.quiver(np.zeros(active.size), np.zeros(active.size), np.zeros(active.size),
                               np.zeros(active.size), color=CONTACT_ARROW_COLOR, **quiver)
         foot_q = ax.quiver([0.0], [0.0], [0.0], [0.0], color=FOOT_ARROW_COLOR, **quiver)

@@ -141,7 +141,8 @@ def make_solution(problem: Problem, x, stages, solver: str, warm_start=None) -> 
     f_contact[:, idx] = np.asarray(forces)
     qdd = np.zeros_like(qbar) if layout.pseudo_static else np.diff(qd, axis=0) / h
     qd_used = np.zeros_like(qbar) if layout.pseudo_static else qdbar
-    f_c0 = np.asarray(jax.vmap(lambda a, b, c, f: ft.foot_reaction(p.model, a, b, c, f))(qbar, qd_used, qdd, jnp.asarray(forces)))
+    reaction = jax.vmap(lambda a, b, c, f: ft.foot_reaction(p.model, a, b, c, f))
+    f_c0 = np.asarray(reaction(qbar, qd_used, qdd, jnp.asarray(forces)))
     margins = np.asarray(jax.vmap(lambda f, u1: ft.foot_constraints(p.foot, p.contact.mu, f, u1))(f_c0, u[:, 0]))
     gaps = np.asarray(jax.vmap(lambda qq: kin.contact_gaps(p.model, p.foot, qq))(q))
     terms = {k: float(v) for k, v in tr.objective_terms(layout, jnp.asarray(Z), p).items()}
@@ -233,5 +234,6 @@ def solve(
         x0 = np.clip(np.asarray(tr.free_from_full(final.layout, Zf)), final.bounds.xl, final.bounds.xu)
     stage2 = {**(STAGE2_DEFAULTS if scheme.stages == 2 else {}), **(options or {}), **(stage2_options or {})}
     res = _run_solver(solver, final, x0, stage2, verbose)
-    stages.append(_stage_stats("stage 2 (dynamic)" if scheme.stages == 2 else "single stage", final, [res], setup_final))
+    name = "stage 2 (dynamic)" if scheme.stages == 2 else "single stage"
+    stages.append(_stage_stats(name, final, [res], setup_final))
     return make_solution(final, res.x, stages, solver, warm_start=warm)

@@ -192,7 +192,8 @@ def _interval(nb: _Numbers, model: _Model, layout, za, zb, last: bool):
         f_c0 = _foot_reaction(nb, model, qbar, ca.DM.zeros(n), ca.DM.zeros(n), forces)
     else:
         qdd = (qd1 - qd0) / h
-        parts.append(h * (model.mass_matrix(qbar) @ qdd + model.coriolis(qbar, qdbar) + model.gravity(qbar) - Q))  # (6b)
+        residual = model.mass_matrix(qbar) @ qdd + model.coriolis(qbar, qdbar) + model.gravity(qbar) - Q
+        parts.append(h * residual)  # (6b)
         f_c0 = _foot_reaction(nb, model, qbar, qdbar, qdd, forces)
     if layout.augmented:
         parts += [fv - fl for fv, fl in zip(forces, laws)]
@@ -203,7 +204,8 @@ def _interval(nb: _Numbers, model: _Model, layout, za, zb, last: bool):
     w = [float(v) for v in nb.weights]
     du = (u1 - u) * (0.0 if last else 1.0)
     w_u, w_qd, w_dqd, w_du = w[:n], w[n], w[n + 1], w[n + 2]
-    cost = h * (ca.dot(ca.DM(w_u), u**2) + w_qd * ca.sumsqr(qd0)) + (w_dqd * ca.sumsqr(qd1 - qd0) + w_du * ca.sumsqr(du)) / h
+    effort = h * (ca.dot(ca.DM(w_u), u**2) + w_qd * ca.sumsqr(qd0))
+    cost = effort + (w_dqd * ca.sumsqr(qd1 - qd0) + w_du * ca.sumsqr(du)) / h
     return ca.vertcat(*parts), cost
 
 
