@@ -87,7 +87,7 @@ class PlanarChain:
     m: np.ndarray
     inertia: np.ndarray
     g: float = 9.81
-    names: tuple = static_field(None)
+    names: tuple = static_field(default=None)
     q_min: np.ndarray | None = None
     q_max: np.ndarray | None = None
 

@@ -72,8 +72,8 @@ class Weights:
 
     def as_array(self, n: int) -> np.ndarray:
         """(n + 3,) = (w_u1..w_un, w_qd, w_dqd, w_du) for a chain of n links."""
-        if np.ndim(self.w_u) == 1 and len(self.w_u) != n:
-            raise ValueError(f"Weights.w_u: expected {n} weights (one per joint), got {len(self.w_u)}")
+        if np.ndim(self.w_u) == 1 and np.size(self.w_u) != n:
+            raise ValueError(f"Weights.w_u: expected {n} weights (one per joint), got {np.size(self.w_u)}")
         w_u = np.broadcast_to(np.asarray(self.w_u, dtype=float), (n,))
         return np.array([*w_u, self.w_qd, self.w_dqd, self.w_du], dtype=float)
 

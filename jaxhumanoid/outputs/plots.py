@@ -176,11 +176,11 @@ def update_stick(artists, points):
 def frame_extent(geometry: dict, points) -> tuple[float, float]:
     """Horizontal extent (xmin, xmax) of one or more stick figures plus the foot."""
     pts = np.asarray(points).reshape(-1, geometry["a"].size + 1, 2)
-    xs = [pts[..., 0].ravel(), [-geometry["a0f"], geometry["a0b"]]]
+    parts = [pts[..., 0].ravel(), np.array([-geometry["a0f"], geometry["a0b"]])]
     if geometry["head"] is not None:
         heads = head_centre(pts, geometry["head"])
-        xs += [heads[:, 0] - HEAD_RADIUS, heads[:, 0] + HEAD_RADIUS]
-    xs = np.concatenate(xs)
+        parts += [heads[:, 0] - HEAD_RADIUS, heads[:, 0] + HEAD_RADIUS]
+    xs = np.concatenate(parts)
     return float(xs.min()), float(xs.max())
 
 
