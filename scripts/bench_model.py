@@ -16,7 +16,7 @@ import jaxhumanoid  # noqa: F401
 from jaxhumanoid.model import contact as ct
 from jaxhumanoid.model import dynamics as dyn
 from jaxhumanoid.model import foot as ft
-from jaxhumanoid.model.params import ContactParams, FootParams, Humanoid
+from jaxhumanoid.model.params import ContactParams, FootParams, PlanarChain
 
 
 def main():
@@ -25,7 +25,7 @@ def main():
     ap.add_argument("--repeats", type=int, default=200)
     ap.add_argument("--out", default="results/bench_model.json")
     args = ap.parse_args()
-    model, foot, contact = Humanoid.paper(), FootParams.paper(), ContactParams.nominal()
+    model, foot, contact = PlanarChain.humanoid(), FootParams.paper(), ContactParams.nominal()
     active = (1, 2, 3, 4, 5)
     rng = np.random.default_rng(0)
     q, qd, qdd, u = (jnp.asarray(rng.normal(size=(args.stages, 5))) for _ in range(4))
@@ -44,7 +44,10 @@ def main():
         "B": jax.jit(jax.vmap(lambda a: dyn.inertia_matrix(model, a))),
         "all (B, C qd, G, Q with 5 contacts, foot reaction)": jax.jit(jax.vmap(one)),
     }
-    res = {"B": time_fn(fns["B"], q, repeats=args.repeats), "all": time_fn(fns["all (B, C qd, G, Q with 5 contacts, foot reaction)"], q, qd, qdd, u, repeats=args.repeats)}
+    res = {
+        "B": time_fn(fns["B"], q, repeats=args.repeats),
+        "all": time_fn(fns["all (B, C qd, G, Q with 5 contacts, foot reaction)"], q, qd, qdd, u, repeats=args.repeats),
+    }
     print(f"{'function (' + str(args.stages) + ' stages, vmap+jit)':50s} {'median':>10s} {'min':>10s} {'compile':>10s}")
     for k, v in res.items():
         print(f"{k:50s} {v['median_ms'] * 1e3:8.1f}us {v['min_ms'] * 1e3:8.1f}us {v['compile_ms']:8.0f}ms")

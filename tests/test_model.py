@@ -1,4 +1,7 @@
-"""Physics identities of the humanoid model."""
+"""Physics identities of the paper's humanoid (``PlanarChain.humanoid()``); tests/test_nlinks.py checks
+them for chains of other lengths."""
+
+import dataclasses
 
 import jax
 import jax.numpy as jnp
@@ -10,11 +13,12 @@ from jaxhumanoid.model import contact as ct
 from jaxhumanoid.model import dynamics as dyn
 from jaxhumanoid.model import foot as ft
 from jaxhumanoid.model import kinematics as kin
-from jaxhumanoid.model.params import ContactParams, FootParams, Humanoid
+from jaxhumanoid.model.params import ContactParams, FootParams, PlanarChain
 
-MODEL = Humanoid.paper()
+MODEL = PlanarChain.humanoid()
 FOOT = FootParams.paper()
 NOMINAL = ContactParams.nominal()
+ALL = (1, 2, 3, 4, 5)
 RNG = np.random.default_rng(42)
 QS = RNG.uniform(-np.pi, np.pi, size=(50, 5))
 QDS = RNG.normal(size=(50, 5))
@@ -44,7 +48,8 @@ def test_pattern_form_matches_paper_formula_entrywise():
                 if r > l or s > l:
                     continue
                 total = sum(A[l, i] ** 2 for i in range(max(r, s), l + 1))
-                total += sum(A[l, i] * A[l, j] * np.cos(theta[i] - theta[j]) for i in range(r, l + 1) for j in range(s, l + 1) if i != j)
+                total += sum(A[l, i] * A[l, j] * np.cos(theta[i] - theta[j])
+                             for i in range(r, l + 1) for j in range(s, l + 1) if i != j)
                 B[r, s] += MODEL.m[l] * total + MODEL.inertia[l]
     assert np.max(np.abs(B - np.asarray(dyn.inertia_matrix(MODEL, q)))) < 1e-12
 
@@ -74,7 +79,8 @@ def test_euler_lagrange_equations_from_lagrangian():
 
 def test_gravity_is_gradient_of_potential():
     for q in QS[:20]:
-        assert np.max(np.abs(dyn.gravity_vector(MODEL, q) - jax.grad(lambda qq: dyn.potential_energy(MODEL, FOOT, qq))(q))) < 1e-11
+        dV = jax.grad(lambda qq: dyn.potential_energy(MODEL, FOOT, qq))(q)
+        assert np.max(np.abs(dyn.gravity_vector(MODEL, q) - dV)) < 1e-11
 
 
 def _midpoint_energies(q0, h, steps):
@@ -87,7 +93,8 @@ def _midpoint_energies(q0, h, steps):
         q1, qd1 = z[:5], z[5:]
         qb, qdb = 0.5 * (q0 + q1), 0.5 * (qd0 + qd1)
         r_a = q1 - q0 - h * qdb
-        r_b = dyn.inertia_matrix(MODEL, qb) @ (qd1 - qd0) + h * (dyn.coriolis_vector(MODEL, qb, qdb) + dyn.gravity_vector(MODEL, qb))
+        r_b = dyn.inertia_matrix(MODEL, qb) @ (qd1 - qd0) + h * (
+            dyn.coriolis_vector(MODEL, qb, qdb) + dyn.gravity_vector(MODEL, qb))
         return jnp.concatenate([r_a, r_b])
 
     def step(carry, _):
@@ -193,8 +200,9 @@ def _central_fd(fun, x, eps=1e-6):
         ("B", lambda z: dyn.inertia_matrix(MODEL, z[:5]).ravel()),
         ("Cqd", lambda z: dyn.coriolis_vector(MODEL, z[:5], z[5:])),
         ("G", lambda z: dyn.gravity_vector(MODEL, z[:5])),
-        ("Q", lambda z: dyn.generalized_forces(MODEL, z[:5], z[5:], ct.contact_forces(MODEL, FOOT, NOMINAL, z[:5], z[5:], (1, 2, 3, 4, 5)), (1, 2, 3, 4, 5))),
-        ("contact", lambda z: ct.contact_forces(MODEL, FOOT, NOMINAL, z[:5], 0.01 * z[5:], (1, 2, 3, 4, 5)).ravel()),
+        ("Q", lambda z: dyn.generalized_forces(
+            MODEL, z[:5], z[5:], ct.contact_forces(MODEL, FOOT, NOMINAL, z[:5], z[5:], ALL), ALL)),
+        ("contact", lambda z: ct.contact_forces(MODEL, FOOT, NOMINAL, z[:5], 0.01 * z[5:], ALL).ravel()),
         ("foot", lambda z: ft.foot_reaction(MODEL, z[:5], z[5:], z[5:] ** 2, jnp.zeros((0, 2)))),
     ],
 )
@@ -230,10 +238,24 @@ def test_parameters_are_differentiable_pytrees():
 @pytest.mark.parametrize(
     "make,field",
     [
-        (lambda: Humanoid(a=[0.4, 0.4, 0.5, 0.3], c=[0.2] * 5, m=[1.0] * 5, inertia=[0.1] * 5, g=9.81), "Humanoid.a"),
-        (lambda: Humanoid(a=[0.4] * 5, c=[0.2] * 5, m=[1.0, -1.0, 1.0, 1.0, 1.0], inertia=[0.1] * 5, g=9.81), "Humanoid.m"),
-        (lambda: Humanoid(a=[0.4] * 5, c=[0.2] * 5, m=[1.0] * 5, inertia=[0.1, np.nan, 0.1, 0.1, 0.1], g=9.81), "Humanoid.inertia"),
-        (lambda: Humanoid(a=[0.4] * 5, c=[0.5] * 5, m=[1.0] * 5, inertia=[0.1] * 5, g=9.81), "Humanoid.c"),
+        (lambda: PlanarChain(a=[0.4, 0.4, 0.5, 0.3], c=[0.2] * 5, m=[1.0] * 5, inertia=[0.1] * 5), "PlanarChain.c"),
+        (lambda: PlanarChain(a=[0.4], c=[0.2], m=[1.0], inertia=[0.1]), "PlanarChain.a"),
+        (lambda: PlanarChain(a=[0.4, -0.4], c=[0.2] * 2, m=[1.0] * 2, inertia=[0.1] * 2), "PlanarChain.a"),
+        (lambda: PlanarChain(a=[0.4] * 5, c=[0.2] * 5, m=[1.0, -1.0, 1.0, 1.0, 1.0], inertia=[0.1] * 5),
+         "PlanarChain.m"),
+        (lambda: PlanarChain(a=[0.4] * 5, c=[0.2] * 5, m=[1.0] * 5, inertia=[0.1, np.nan, 0.1, 0.1, 0.1]),
+         "PlanarChain.inertia"),
+        (lambda: PlanarChain(a=[0.4] * 5, c=[0.5] * 5, m=[1.0] * 5, inertia=[0.1] * 5), "PlanarChain.c"),
+        (lambda: PlanarChain(a=[0.4] * 2, c=[0.2] * 2, m=[1.0] * 2, inertia=[0.1] * 2, g=-1.0), "PlanarChain.g"),
+        (lambda: PlanarChain(a=[0.4] * 3, c=[0.2] * 3, m=[1.0] * 3, inertia=[0.1] * 3, names=("a", "b")),
+         "PlanarChain.names"),
+        (lambda: PlanarChain(a=[0.4] * 3, c=[0.2] * 3, m=[1.0] * 3, inertia=[0.1] * 3, names=("a", "b", "a")),
+         "PlanarChain.names"),
+        (lambda: PlanarChain(a=[0.4] * 2, c=[0.2] * 2, m=[1.0] * 2, inertia=[0.1] * 2, q_min=[0.0, 1.0],
+                             q_max=[1.0, 1.0]),
+         "PlanarChain.q_min"),
+        (lambda: PlanarChain(a=[0.4] * 2, c=[0.2] * 2, m=[1.0] * 2, inertia=[0.1] * 2, q_max=[1.0, 1.0, 1.0]),
+         "PlanarChain.q_max"),
         (lambda: ContactParams(kappa=-1.0, f0=200.0, xhat=0.02, mu=1.0), "ContactParams.kappa"),
         (lambda: ContactParams(kappa=1e5, f0="x", xhat=0.02, mu=1.0), "ContactParams.f0"),
         (lambda: FootParams(a0f=0.2, a0b=0.058, ankle_height=0.0), "FootParams.ankle_height"),
@@ -242,3 +264,16 @@ def test_parameters_are_differentiable_pytrees():
 def test_bad_parameters_raise_clear_errors(make, field):
     with pytest.raises(ValueError, match=field.replace(".", r"\.")):
         make()
+
+
+def test_humanoid_is_table_one_with_named_joints_and_ranges():
+    assert MODEL.n == 5 and MODEL.names == ("knee", "hip", "shoulder", "elbow", "hand")
+    assert float(MODEL.total_mass) == pytest.approx(71.04)
+    assert np.all(MODEL.q_min < MODEL.q_max) and MODEL.q_min.shape == MODEL.q_max.shape == (5,)
+    # the names are static: not a leaf, part of the tree structure
+    leaves = jax.tree_util.tree_leaves(MODEL)
+    assert all(isinstance(leaf, np.ndarray) for leaf in leaves) and len(leaves) == 7
+    heavier = dataclasses.replace(MODEL, m=2 * MODEL.m)
+    assert heavier.names == MODEL.names and float(heavier.total_mass) == pytest.approx(2 * 71.04)
+    with pytest.raises(ValueError, match=r"PlanarChain\.m"):
+        dataclasses.replace(MODEL, m=-MODEL.m)

@@ -18,7 +18,8 @@ from jaxhumanoid.outputs import animation, plots, timeline
 from jaxhumanoid.strategy.solution import Solution, StageStats
 
 A = np.array([0.473, 0.422, 0.532, 0.282, 0.355])
-GEOMETRY = {"a": A, "ankle_height": 0.068, "a0f": 0.200, "a0b": 0.058, "active": np.array([1, 4, 5])}
+NAMES = ("knee", "hip", "shoulder", "elbow", "hand")
+GEOMETRY = {"a": A, "names": NAMES, "ankle_height": 0.068, "a0f": 0.200, "a0b": 0.058, "active": np.array([1, 4, 5])}
 MASS, G, MU, KAPPA, F0, XHAT = 73.0, 9.81, 1.0, 1e5, 200.0, 0.02
 
 
@@ -105,10 +106,10 @@ def _has_unit(label):
 def test_joint_positions_match_model_kinematics():
     import jax.numpy as jnp
 
-    from jaxhumanoid.model import FootParams, Humanoid
+    from jaxhumanoid.model import FootParams, PlanarChain
     from jaxhumanoid.model.kinematics import joint_positions
 
-    model, foot = Humanoid.paper(), FootParams.paper()
+    model, foot = PlanarChain.humanoid(), FootParams.paper()
     geo = {"a": np.asarray(model.a), "ankle_height": 0.068, "a0f": 0.2, "a0b": 0.058}
     qs = np.random.default_rng(0).uniform(-np.pi, np.pi, (4, 5))
     ours = plots.joint_positions(geo, qs)
@@ -121,7 +122,8 @@ def test_standing_posture_is_upright():
     p = plots.joint_positions(GEOMETRY, STANDING)
     np.testing.assert_allclose(p[:4, 0], 0.0, atol=1e-12)
     np.testing.assert_allclose(p[3, 1], 0.068 + A[:3].sum())
-    assert plots.head_centre(p)[1] > p[3, 1]
+    assert plots.geometry_of(make_solution(n=4))["head"] == 3  # the shoulder's row in the joint positions
+    assert plots.head_centre(p, 3)[1] > p[3, 1]
 
 
 def test_pack_offsets_places_frames_side_by_side():

@@ -13,7 +13,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from jaxhumanoid.model import kinematics as kin
-from jaxhumanoid.model.params import ContactParams, FootParams, Humanoid
+from jaxhumanoid.model.params import ContactParams, FootParams, PlanarChain
 
 
 def normal_force(contact: ContactParams, y):
@@ -26,8 +26,8 @@ def friction_force(contact: ContactParams, f_n, xd):
     return -contact.mu * f_n * jnp.tanh(xd / contact.xhat)
 
 
-def contact_forces(model: Humanoid, foot: FootParams, contact: ContactParams, q, qd, active):
-    """Forces (f_t, f_n) at the joints in ``active`` (indices 1..5), shape (k, 2).
+def contact_forces(model: PlanarChain, foot: FootParams, contact: ContactParams, q, qd, active):
+    """Forces (f_t, f_n) at the joints in ``active`` (indices 1..n), shape (k, 2).
 
     Gap y and sliding velocity xd are those of O_i at (q, qd); in the transcription they are
     evaluated at the collocation midpoints.

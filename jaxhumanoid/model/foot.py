@@ -22,12 +22,12 @@ import jax.numpy as jnp
 
 from jaxhumanoid.model import kinematics as kin
 from jaxhumanoid.model.dynamics import lever_mass
-from jaxhumanoid.model.params import FootParams, Humanoid
+from jaxhumanoid.model.params import FootParams, PlanarChain
 
 FOOT_CONSTRAINT_NAMES = ("f_n0", "mu f_n0 - f_t0", "mu f_n0 + f_t0", "a0f f_n0 + u_1", "a0b f_n0 - u_1")
 
 
-def momentum_rate(model: Humanoid, q, qd, qdd):
+def momentum_rate(model: PlanarChain, q, qd, qdd):
     """sum_l m_l a_COM_l, shape (2,)."""
     theta = kin.absolute_angles(q)
     thetad = kin.absolute_angles(qd)
@@ -38,7 +38,7 @@ def momentum_rate(model: Humanoid, q, qd, qdd):
     return (w * thetadd) @ e_perp - (w * thetad**2) @ e
 
 
-def foot_reaction(model: Humanoid, q, qd, qdd, f_contact):
+def foot_reaction(model: PlanarChain, q, qd, qdd, f_contact):
     """Ground reaction on the foot (f_t0, f_n0), shape (2,).
 
     f_contact: (k, 2) contact forces (f_t, f_n) on the chain (k may be 0).

@@ -16,11 +16,11 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from jaxhumanoid.model.params import FootParams, Humanoid
+from jaxhumanoid.model.params import FootParams, PlanarChain
 
 
 def absolute_angles(q):
-    """theta = L q, theta_l = q_1 + ... + q_l. Shape (5,) -> (5,)."""
+    """theta = L q, theta_l = q_1 + ... + q_l. Shape (n,) -> (n,)."""
     return jnp.cumsum(q, axis=-1)
 
 
@@ -29,18 +29,18 @@ def to_relative_gradient(grad_theta):
     return jnp.flip(jnp.cumsum(jnp.flip(grad_theta, -1), -1), -1)
 
 
-def joint_lever(model: Humanoid):
-    """Lever matrix of the joints O_1..O_5: P[l, i] = a_i for i <= l. Shape (5, 5)."""
-    return jnp.tril(jnp.broadcast_to(jnp.asarray(model.a), (5, 5)))
+def joint_lever(model: PlanarChain):
+    """Lever matrix of the joints O_1..O_n: P[l, i] = a_i for i <= l. Shape (n, n)."""
+    return jnp.tril(jnp.broadcast_to(jnp.asarray(model.a), (model.n, model.n)))
 
 
-def com_lever(model: Humanoid):
+def com_lever(model: PlanarChain):
     """Lever matrix of the link COMs: A[l, i] = a_i (i < l), a_l - c_l (i = l), 0 (i > l)."""
     return joint_lever(model) - jnp.diag(jnp.asarray(model.c))
 
 
 def _unit(theta):
-    return jnp.stack([jnp.cos(theta), jnp.sin(theta)], axis=-1)  # (5, 2)
+    return jnp.stack([jnp.cos(theta), jnp.sin(theta)], axis=-1)  # (n, 2)
 
 
 def ankle(foot: FootParams):
@@ -48,48 +48,48 @@ def ankle(foot: FootParams):
     return jnp.stack([jnp.zeros_like(foot.ankle_height), jnp.asarray(foot.ankle_height, dtype=jnp.float64)])
 
 
-def joint_positions(model: Humanoid, foot: FootParams, q):
-    """Positions of O_0 (ankle), O_1 (knee), O_2 (hip), O_3 (shoulder), O_4 (elbow), O_5 (hand).
+def joint_positions(model: PlanarChain, foot: FootParams, q):
+    """Positions of O_0 (ankle) and the joints O_1..O_n (the humanoid: knee, hip, shoulder, elbow, hand).
 
-    q: (5,) -> (6, 2) array of (x, y).
+    q: (n,) -> (n + 1, 2) array of (x, y).
     """
     rel = joint_lever(model) @ _unit(absolute_angles(q))
     o0 = ankle(foot)
     return jnp.concatenate([o0[None], o0 + rel], axis=0)
 
 
-def com_positions(model: Humanoid, foot: FootParams, q):
-    """Centres of mass of the five links. q: (5,) -> (5, 2)."""
+def com_positions(model: PlanarChain, foot: FootParams, q):
+    """Centres of mass of the n links. q: (n,) -> (n, 2)."""
     return ankle(foot) + com_lever(model) @ _unit(absolute_angles(q))
 
 
-def contact_gaps(model: Humanoid, foot: FootParams, q):
-    """Normal gaps y_i = height of O_i above the ground, i = 1..5. q: (5,) -> (5,)."""
+def contact_gaps(model: PlanarChain, foot: FootParams, q):
+    """Normal gaps y_i = height of O_i above the ground, i = 1..n. q: (n,) -> (n,)."""
     return foot.ankle_height + joint_lever(model) @ jnp.sin(absolute_angles(q))
 
 
 def point_jacobians(lever, q):
     """Linear velocity Jacobians J_v (d position / d q) of the points with lever matrix ``lever``.
 
-    lever: (p, 5); q: (5,) -> (p, 2, 5). d/dtheta_i of point p is lever[p, i] * e_i^perp,
+    lever: (p, n); q: (n,) -> (p, 2, n). d/dtheta_i of point p is lever[p, i] * e_i^perp,
     e_i^perp = (-sin, cos); then d/dq_j = sum_{i >= j} d/dtheta_i.
     """
     theta = absolute_angles(q)
-    e_perp = jnp.stack([-jnp.sin(theta), jnp.cos(theta)], axis=0)  # (2, 5)
-    j_theta = lever[:, None, :] * e_perp[None]  # (p, 2, 5)
+    e_perp = jnp.stack([-jnp.sin(theta), jnp.cos(theta)], axis=0)  # (2, n)
+    j_theta = lever[:, None, :] * e_perp[None]  # (p, 2, n)
     return to_relative_gradient(j_theta)
 
 
-def joint_jacobians(model: Humanoid, q):
-    """J_v of the joints O_1..O_5, shape (5, 2, 5): J[i] maps qd to the velocity of O_{i+1}."""
+def joint_jacobians(model: PlanarChain, q):
+    """J_v of the joints O_1..O_n, shape (n, 2, n): J[i] maps qd to the velocity of O_{i+1}."""
     return point_jacobians(joint_lever(model), q)
 
 
-def com_jacobians(model: Humanoid, q):
-    """J_v of the five link COMs, shape (5, 2, 5)."""
+def com_jacobians(model: PlanarChain, q):
+    """J_v of the n link COMs, shape (n, 2, n)."""
     return point_jacobians(com_lever(model), q)
 
 
-def joint_velocities(model: Humanoid, q, qd):
-    """Velocities of O_1..O_5, shape (5, 2)."""
+def joint_velocities(model: PlanarChain, q, qd):
+    """Velocities of O_1..O_n, shape (n, 2)."""
     return joint_jacobians(model, q) @ qd

@@ -1,9 +1,9 @@
 """Model parameters as immutable pytrees (Table I, Sec. II-D, Sec. II-E).
 
-Every field is a leaf, so any function of the parameters can be differentiated with respect to
-them (masses, lengths, contact stiffness, ...). Constructors validate concrete inputs and raise a
-``ValueError`` naming the field; traced values (inside ``jit``/``grad``) are passed through
-unchecked.
+Every numeric field is a leaf, so any function of the parameters can be differentiated with
+respect to them (masses, lengths, contact stiffness, ...); names are static metadata. Constructors
+validate concrete inputs and raise a ``ValueError`` naming the field; traced values (inside
+``jit``/``grad``) are passed through unchecked.
 """
 
 from __future__ import annotations
@@ -11,11 +11,13 @@ from __future__ import annotations
 import jax
 import numpy as np
 
-from jaxhumanoid.pytree import pytree_dataclass
+from jaxhumanoid.pytree import pytree_dataclass, static_field
 
-N_LINKS = 5
-LINK_NAMES = ("lower leg", "upper leg", "trunk + head", "upper arm", "forearm + hand")
-JOINT_NAMES = ("ankle", "knee", "hip", "shoulder", "elbow", "hand")
+# Joints O_1..O_5 of the paper's humanoid (links: lower leg, upper leg, trunk + head, upper arm,
+# forearm + hand).
+HUMANOID_JOINTS = ("knee", "hip", "shoulder", "elbow", "hand")
+
+DEG = np.pi / 180.0
 
 
 def _is_concrete(x) -> bool:
@@ -41,40 +43,96 @@ def _check(owner: str, name: str, value, shape: tuple, positive: bool = True, no
     return arr
 
 
-@pytree_dataclass
-class Humanoid:
-    """Inertial parameters of the 5-link chain (Table I) and gravity.
+def default_joint_names(n: int) -> tuple[str, ...]:
+    """("O_1", ..., "O_n"): the joint names of a chain that gives none."""
+    return tuple(f"O_{i}" for i in range(1, n + 1))
 
-    a: link lengths a_i (m), shape (5,)
-    c: distance of the COM of link i from its distal joint O_i towards O_{i-1} (m), shape (5,)
-    m: masses m_i (kg), shape (5,)
-    inertia: centroidal moments of inertia i_i (kg m^2), shape (5,)
+
+def default_joint_ranges(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Joint ranges (q_min, q_max) of a generic chain, (n,) each: q_1 (the absolute angle of the
+    first link) in [0, 210 deg], so that the link stays above the ground plane through the ankle;
+    every relative angle in [-180 deg, 180 deg]."""
+    q_min = np.concatenate([[0.0], np.full(n - 1, -180.0)]) * DEG
+    q_max = np.concatenate([[210.0], np.full(n - 1, 180.0)]) * DEG
+    return q_min, q_max
+
+
+def _check_names(names, n: int) -> tuple[str, ...]:
+    if names is None:
+        return default_joint_names(n)
+    names = tuple(names)
+    if len(names) != n or not all(isinstance(x, str) and x for x in names):
+        raise ValueError(f"PlanarChain.names: expected {n} non-empty strings (one per joint O_1..O_{n}), got {names!r}")
+    if len(set(names)) != n:
+        raise ValueError(f"PlanarChain.names: joint names must be distinct, got {names!r}")
+    return names
+
+
+@pytree_dataclass
+class PlanarChain:
+    """A planar serial chain of n >= 2 links on a steady foot (Table I for the paper's humanoid).
+
+    a: link lengths a_i (m), shape (n,); n = len(a)
+    c: distance of the COM of link i from its distal joint O_i towards O_{i-1} (m), shape (n,)
+    m: masses m_i (kg), shape (n,)
+    inertia: centroidal moments of inertia i_i (kg m^2), shape (n,)
     g: gravitational acceleration (m/s^2)
+    names: names of the joints O_1..O_n (static, not a leaf); default ("O_1", ..., "O_n")
+    q_min, q_max: joint ranges (rad), shape (n,), used by tasks that give none; default
+        ``default_joint_ranges(n)``
     """
 
     a: np.ndarray
     c: np.ndarray
     m: np.ndarray
     inertia: np.ndarray
-    g: float
+    g: float = 9.81
+    names: tuple = static_field(default=None)
+    q_min: np.ndarray | None = None
+    q_max: np.ndarray | None = None
 
     def __post_init__(self):
+        shape = np.shape(self.a)
+        if len(shape) != 1 or shape[0] < 2:
+            raise ValueError(f"PlanarChain.a: expected the lengths of n >= 2 links, shape (n,), got shape {shape}")
+        n = shape[0]
+        object.__setattr__(self, "names", _check_names(self.names, n))
         for name in ("a", "c", "m", "inertia"):
-            object.__setattr__(self, name, _check("Humanoid", name, getattr(self, name), (N_LINKS,)))
-        object.__setattr__(self, "g", _check("Humanoid", "g", self.g, (), positive=False, nonneg=True))
+            object.__setattr__(self, name, _check("PlanarChain", name, getattr(self, name), (n,)))
+        object.__setattr__(self, "g", _check("PlanarChain", "g", self.g, (), positive=False, nonneg=True))
         if _is_concrete(self.a) and _is_concrete(self.c) and not np.all(np.asarray(self.c) <= np.asarray(self.a)):
-            raise ValueError(f"Humanoid.c: each c_i must lie on its link (c_i <= a_i), got c={self.c}, a={self.a}")
+            raise ValueError(f"PlanarChain.c: each c_i must lie on its link (c_i <= a_i), got c={self.c}, a={self.a}")
+        lo, hi = default_joint_ranges(n)
+        for name, default in (("q_min", lo), ("q_max", hi)):
+            value = default if getattr(self, name) is None else getattr(self, name)
+            object.__setattr__(self, name, _check("PlanarChain", name, value, (n,), positive=False))
+        if _is_concrete(self.q_min) and _is_concrete(self.q_max) and not np.all(self.q_min < self.q_max):
+            raise ValueError(f"PlanarChain.q_min: each q_min_i must be below q_max_i, got q_min={self.q_min}, "
+                             f"q_max={self.q_max}")
 
     @classmethod
-    def paper(cls) -> Humanoid:
-        """Table I: adult man of 73 kg and 1.74 m (adapted by the paper from its ref. [14])."""
+    def humanoid(cls) -> PlanarChain:
+        """Table I: adult man of 73 kg and 1.74 m (adapted by the paper from its ref. [14]).
+
+        Joint ranges (rad): q_1 is the absolute angle of the lower leg; the shoulder range spans
+        the hanging arm (-180 deg), the forward-raised arm of the prone posture and the overhead
+        arm of the supine posture (-385 deg, i.e. 205 deg of flexion).
+        """
         return cls(
             a=np.array([0.473, 0.422, 0.532, 0.282, 0.355]),
             c=np.array([0.208, 0.173, 0.179, 0.119, 0.174]),
             m=np.array([6.32, 20.7, 36.8, 3.96, 3.26]),
             inertia=np.array([0.0855, 0.399, 1.92, 0.0227, 0.0434]),
             g=9.81,
+            names=HUMANOID_JOINTS,
+            q_min=np.array([0.0, -165.0, -45.0, -420.0, -160.0]) * DEG,
+            q_max=np.array([210.0, 5.0, 160.0, -100.0, 5.0]) * DEG,
         )
+
+    @property
+    def n(self) -> int:
+        """Number of links (and of joints O_1..O_n)."""
+        return len(self.names)
 
     @property
     def total_mass(self):

@@ -2,7 +2,7 @@
 
 * forces: "E" (embedded: contact laws inside Q) or "A" (augmented: contact forces are variables and
   their laws (3)-(4) equality constraints);
-* contacts: "F" (all five joints O_1..O_5 carry contact forces) or "F+C" (only the task's active
+* contacts: "F" (every joint O_1..O_n carries a contact force) or "F+C" (only the task's active
   set does; the others get clearance constraints y_Oi(q) >= 0);
 * stages: 1 (one solve, "1S") or 2 (pseudo-static warm start on a coarse grid, then the full
   problem, "2S").
@@ -42,9 +42,9 @@ class Scheme:
     def __str__(self) -> str:
         return f"{self.forces},{self.contacts},{self.stages}S"
 
-    def active_set(self, task_active: tuple) -> tuple:
-        """Joints carrying contact forces: all five under F, the task's set under F+C."""
-        return tuple(task_active) if self.clearance else (1, 2, 3, 4, 5)
+    def active_set(self, task_active: tuple, n_links: int) -> tuple:
+        """Joints carrying contact forces: all of 1..n_links under F, the task's set under F+C."""
+        return tuple(task_active) if self.clearance else tuple(range(1, n_links + 1))
 
 
 def parse_scheme(text) -> Scheme:
@@ -52,7 +52,8 @@ def parse_scheme(text) -> Scheme:
     if isinstance(text, Scheme):
         return text
     parts = [p for p in str(text).upper().replace(",", " ").replace("-", " ").replace("/", " ").split() if p]
-    err = f"scheme: cannot parse {text!r}; expected forces in {_FORCES}, contacts in {_CONTACTS}, stages in {_STAGES}, e.g. 'A,F+C,2S'"
+    err = (f"scheme: cannot parse {text!r}; expected forces in {_FORCES}, contacts in {_CONTACTS}, "
+           f"stages in {_STAGES}, e.g. 'A,F+C,2S'")
     if len(parts) != 3 or parts[0] not in _FORCES or parts[1] not in _CONTACTS or parts[2] not in _STAGES:
         raise ValueError(err)
     return Scheme(parts[0], parts[1], int(parts[2][0]))

@@ -1,9 +1,10 @@
-"""The benchmark tasks T1-T4 (Sec. III-B) and every number the paper leaves open.
+"""Tasks: start and goal postures of a planar chain, and the paper's benchmark tasks T1-T4 (Sec. III-B).
 
-All open choices live here: reference postures, joint ranges, goal tolerance, torque box and the
-eight cost weights of (7).
+Every number the paper leaves open for T1-T4 lives here: reference postures, goal tolerance,
+torque box and the cost weights of (7). The joint ranges belong to the body
+(``PlanarChain.q_min``/``q_max``); a task may narrow or widen them with its own.
 
-Postures (relative angles q, rad; conventions in ``jaxhumanoid.model``):
+Postures of the humanoid (relative angles q, rad; conventions in ``jaxhumanoid.model``):
 
 * standing: upright, leaning 3 deg forward so the centre of pressure sits 5 cm ahead of the ankle,
   arms hanging with the elbows slightly bent.
@@ -27,62 +28,108 @@ import dataclasses
 
 import numpy as np
 
-from jaxhumanoid.model.params import N_LINKS
-
-DEG = np.pi / 180.0
+from jaxhumanoid.model.params import DEG, PlanarChain
 
 STANDING = np.array([93.0 * DEG, 0.0, 0.0, -np.pi, -12.0 * DEG])
 PRONE = np.array([3.277316, -0.256628, -0.299796, -4.512321, -1.369876])
 SUPINE = np.array([0.697404, -1.787126, 1.333707, -0.441913 - 2 * np.pi, -0.003109])
-
-# Joint ranges (rad). q_1 is the absolute angle of the lower leg; the shoulder range spans the
-# hanging arm (-180 deg), the forward-raised arm of the prone posture and the overhead arm of the
-# supine posture (-385 deg, i.e. 205 deg of flexion).
-Q_MIN = np.array([0.0, -165.0, -45.0, -420.0, -160.0]) * DEG
-Q_MAX = np.array([210.0, 5.0, 160.0, -100.0, 5.0]) * DEG
 
 GOAL_TOLERANCE = 0.05  # rad: the goal posture is "slightly relaxed by bound constraints" (Sec. II-G)
 TORQUE_LIMIT = 1000.0  # N m: a safety box; the cost keeps torques far below it
 CONTACT_FORCE_LIMIT = 1.0e4  # N: box on augmented contact-force variables
 
 
+def _nonneg(name: str, val) -> None:
+    arr = np.asarray(val, dtype=float)
+    if not np.all(np.isfinite(arr)) or np.any(arr < 0):
+        raise ValueError(f"Weights.{name}: must be finite and >= 0, got {val}")
+
+
 @dataclasses.dataclass(frozen=True)
 class Weights:
-    """The eight weights of the objective (7).
+    """The weights of the objective (7): w_u (one per joint torque), w_qd, w_dqd, w_du.
 
     J = h sum_k [ sum_j w_u[j] u_kj^2 + w_qd |qd_k|^2 ]
         + h sum_k [ w_dqd |(qd_{k+1} - qd_k)/h|^2 + w_du |(u_{k+1} - u_k)/h|^2 ]
 
     i.e. time integrals of torques squared, velocities squared, accelerations squared and torque
     rates squared, so that the value hardly depends on N (2S compares objectives across grids).
+    ``w_u`` is a scalar (the same for every joint) or a sequence with one weight per joint.
     """
 
-    w_u: tuple = (1e-3, 1e-3, 1e-3, 1e-3, 1e-3)
+    w_u: float | tuple = 1e-3
     w_qd: float = 1.0
     w_dqd: float = 2e-2
     w_du: float = 1e-5
 
     def __post_init__(self):
-        if len(self.w_u) != N_LINKS:
-            raise ValueError(f"Weights.w_u: expected {N_LINKS} weights, got {len(self.w_u)}")
-        for name, val in (("w_u", self.w_u), ("w_qd", self.w_qd), ("w_dqd", self.w_dqd), ("w_du", self.w_du)):
-            arr = np.asarray(val, dtype=float)
-            if not np.all(np.isfinite(arr)) or np.any(arr < 0):
-                raise ValueError(f"Weights.{name}: must be finite and >= 0, got {val}")
+        if np.ndim(self.w_u) > 1 or np.size(self.w_u) == 0:
+            raise ValueError(f"Weights.w_u: expected a scalar or a sequence of per-joint weights, got {self.w_u!r}")
+        if np.ndim(self.w_u) == 1:
+            object.__setattr__(self, "w_u", tuple(float(w) for w in self.w_u))
+        for name in ("w_u", "w_qd", "w_dqd", "w_du"):
+            _nonneg(name, getattr(self, name))
 
-    def as_array(self) -> np.ndarray:
-        """(8,) = (w_u1..w_u5, w_qd, w_dqd, w_du)."""
-        return np.array([*self.w_u, self.w_qd, self.w_dqd, self.w_du], dtype=float)
+    def as_array(self, n: int) -> np.ndarray:
+        """(n + 3,) = (w_u1..w_un, w_qd, w_dqd, w_du) for a chain of n links."""
+        if np.ndim(self.w_u) == 1 and np.size(self.w_u) != n:
+            raise ValueError(f"Weights.w_u: expected {n} weights (one per joint), got {np.size(self.w_u)}")
+        w_u = np.broadcast_to(np.asarray(self.w_u, dtype=float), (n,))
+        return np.array([*w_u, self.w_qd, self.w_dqd, self.w_du], dtype=float)
+
+
+def _posture(owner: str, name: str, value, n: int | None = None) -> np.ndarray:
+    arr = np.asarray(value, dtype=float)
+    if arr.ndim != 1 or arr.size < 2 or (n is not None and arr.size != n):
+        want = "(n,) with n >= 2" if n is None else f"({n},)"
+        raise ValueError(f"{owner}.{name}: expected one angle per joint, shape {want}, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{owner}.{name}: angles must be finite, got {arr}")
+    return arr
 
 
 @dataclasses.dataclass(frozen=True)
 class Task:
+    """Start and goal postures of a chain of n links, shape (n,) each; ``active``: the contact
+    set F of the F+C scheme (joints in 1..n, Figs. 5-8); ``q_min``/``q_max``: joint ranges (n,)
+    replacing the body's (``PlanarChain.q_min``/``q_max``) when given."""
+
     key: str
     name: str
     start: np.ndarray
     goal: np.ndarray
-    active: tuple  # contact set F of the F+C scheme (Figs. 5-8)
+    active: tuple
     weights: Weights = Weights()
+    q_min: np.ndarray | None = None
+    q_max: np.ndarray | None = None
+
+    def __post_init__(self):
+        start = _posture("Task", "start", self.start)
+        n = start.size
+        object.__setattr__(self, "start", start)
+        object.__setattr__(self, "goal", _posture("Task", "goal", self.goal, n))
+        active = tuple(int(i) for i in self.active)
+        if len(set(active)) != len(active) or not all(1 <= i <= n for i in active):
+            raise ValueError(f"Task.active: expected distinct joints in 1..{n}, got {self.active!r}")
+        object.__setattr__(self, "active", active)
+        for name in ("q_min", "q_max"):
+            if getattr(self, name) is not None:
+                object.__setattr__(self, name, _posture("Task", name, getattr(self, name), n))
+        if self.q_min is not None and self.q_max is not None and not np.all(self.q_min < self.q_max):
+            raise ValueError(f"Task.q_min: each q_min_i must be below q_max_i, got {self.q_min} and {self.q_max}")
+
+    @property
+    def n(self) -> int:
+        """Number of joints of the chain the task is posed for."""
+        return self.start.size
+
+    def joint_ranges(self, model: PlanarChain) -> tuple[np.ndarray, np.ndarray]:
+        """(q_min, q_max), (n,) each: the task's own ranges where given, else the body's."""
+        if model.n != self.n:
+            raise ValueError(f"model: task {self.key} is posed for {self.n} joints, the chain has {model.n}")
+        q_min = np.asarray(model.q_min, dtype=float) if self.q_min is None else self.q_min
+        q_max = np.asarray(model.q_max, dtype=float) if self.q_max is None else self.q_max
+        return q_min, q_max
 
 
 TASKS = {

@@ -2,14 +2,14 @@
 
 Grid: N intervals of length h = T/N, nodes k = 0..N. Per stage k the full layout holds
 
-    Z[k] = (q_k, qd_k, u_k, f_k)        q, qd, u in R^5; f in R^{2|F|} under scheme A (else empty)
+    Z[k] = (q_k, qd_k, u_k, f_k)        q, qd, u in R^n; f in R^{2|F|} under scheme A (else empty)
 
-(for k = N, u_N and f_N are padding, fixed at zero), so the paper's stacked vector
+for a chain of n links (for k = N, u_N and f_N are padding, fixed at zero), so the paper's stacked vector
 {q_0, qd_0, u_0, f_0, ..., q_N, qd_N} is Z flattened. The NLP variables x are the free entries:
 q_0, qd_0 = 0 and u_0 (equilibrium torques) are fixed by the initial conditions, and qd_{N-1} =
 qd_N = 0 by the terminal static equilibrium, which gives the paper's count
 
-    m = 2n(N+1) + nN + 2|F|N - 3n - 2n        (1485 for E-F, 2485 for A-F at N = 100).
+    2n(N+1) + nN + 2|F|N - 3n - 2n variables  (the humanoid, n = 5: 1485 for E-F, 2485 for A-F at N = 100).
 
 Constraints of interval k, functions of (Z[k], Z[k+1]) only, in this order:
 
@@ -18,7 +18,7 @@ Constraints of interval k, functions of (Z[k], Z[k+1]) only, in this order:
           or, pseudo-static, (8): G(qbar_k) - Q(qbar_k, (q_{k+1} - q_k)/h, u_k) = 0   n
     A:    f_k - (f_t, f_n)(qbar_k, qdbar_k) = 0   (laws (3)-(4) at the midpoint)    2|F|
     (5)   steady-foot products >= 0 at the midpoint                                 5
-    F+C:  y_Oi(q_{k+1}) >= 0 for the joints without a contact force                 5 - |F|
+    F+C:  y_Oi(q_{k+1}) >= 0 for the joints without a contact force                 n - |F|
 
 The constraint Jacobian therefore couples stage k only with stages k and k+1, and the Lagrangian
 Hessian is a sum of per-interval (2s x 2s) blocks: ``derivatives.stagewise`` exploits this.
@@ -36,21 +36,22 @@ from jaxhumanoid.model import contact as ct
 from jaxhumanoid.model import dynamics as dyn
 from jaxhumanoid.model import foot as ft
 from jaxhumanoid.model import kinematics as kin
-from jaxhumanoid.model.params import ContactParams, FootParams, Humanoid
+from jaxhumanoid.model.params import ContactParams, FootParams, PlanarChain
 from jaxhumanoid.ocp import tasks as tasks_mod
 from jaxhumanoid.pytree import pytree_dataclass
 
-N_Q = 5
+N_FOOT = 5  # steady-foot products (5a)-(5c) per interval
 
 
 @pytree_dataclass
 class OCPParams:
     """Everything numeric the NLP depends on (a pytree: vmap and differentiate over it).
 
-    weights: (8,) = (w_u1..w_u5, w_qd, w_dqd, w_du); T: horizon (s); q_start: (5,) start posture.
+    For a chain of n links: weights (n + 3,) = (w_u1..w_un, w_qd, w_dqd, w_du); T: horizon (s);
+    q_start: (n,) start posture.
     """
 
-    model: Humanoid
+    model: PlanarChain
     foot: FootParams
     contact: ContactParams
     weights: jax.Array | np.ndarray
@@ -60,13 +61,20 @@ class OCPParams:
 
 @dataclasses.dataclass(frozen=True)
 class Layout:
-    """Static shape information of one transcription."""
+    """Static shape information of one transcription of a chain of ``n_links`` links."""
 
     N: int
-    active: tuple  # joints with contact forces (1..5)
+    active: tuple  # joints with contact forces (1..n_links)
     augmented: bool
     clearance: bool
     pseudo_static: bool
+    n_links: int
+
+    def __post_init__(self):
+        if not isinstance(self.n_links, (int, np.integer)) or self.n_links < 2:
+            raise ValueError(f"Layout.n_links: expected an integer >= 2, got {self.n_links!r}")
+        if not all(1 <= i <= self.n_links for i in self.active):
+            raise ValueError(f"Layout.active: joints must lie in 1..{self.n_links}, got {self.active!r}")
 
     @property
     def n_f(self) -> int:
@@ -75,44 +83,49 @@ class Layout:
     @property
     def s(self) -> int:
         """Variables per stage in the full layout."""
-        return 3 * N_Q + self.n_f
+        return 3 * self.n_links + self.n_f
 
     @property
     def clear_joints(self) -> tuple:
-        return tuple(i for i in range(1, 6) if i not in self.active) if self.clearance else ()
+        return tuple(i for i in range(1, self.n_links + 1) if i not in self.active) if self.clearance else ()
 
     @property
     def n_con(self) -> int:
         """Constraints per interval."""
-        return 2 * N_Q + self.n_f + 5 + len(self.clear_joints)
+        return 2 * self.n_links + self.n_f + N_FOOT + len(self.clear_joints)
 
-    def stage_slices(self):
-        return dict(q=slice(0, 5), qd=slice(5, 10), u=slice(10, 15), f=slice(15, 15 + self.n_f))
+    def stage_slices(self) -> dict[str, slice]:
+        """Columns of q, qd, u (n each) and f (n_f) in a stage of the full layout."""
+        n = self.n_links
+        return dict(q=slice(0, n), qd=slice(n, 2 * n), u=slice(2 * n, 3 * n), f=slice(3 * n, 3 * n + self.n_f))
 
     def free_mask(self) -> np.ndarray:
         """(N+1, s) boolean: True for NLP variables."""
+        sl = self.stage_slices()
         free = np.ones((self.N + 1, self.s), dtype=bool)
-        free[0, 0:15] = False  # q_0, qd_0, u_0
-        free[self.N - 1, 5:10] = False  # qd_{N-1}
-        free[self.N, 5:] = False  # qd_N and the padding u_N, f_N
+        free[0, 0 : sl["u"].stop] = False  # q_0, qd_0, u_0
+        free[self.N - 1, sl["qd"]] = False  # qd_{N-1}
+        free[self.N, sl["qd"].start :] = False  # qd_N and the padding u_N, f_N
         return free
 
     def constraint_kinds(self) -> np.ndarray:
         """Per-interval constraint kinds: 0 equality, 1 inequality (>= 0)."""
-        return np.array([0] * (2 * N_Q + self.n_f) + [1] * (5 + len(self.clear_joints)))
+        return np.array([0] * (2 * self.n_links + self.n_f) + [1] * (N_FOOT + len(self.clear_joints)))
 
 
 def equilibrium_torques(p: OCPParams, q, active):
-    """u with G(q) = Q(q, 0, u): static equilibrium of (1) at rest."""
-    f = ct.contact_forces(p.model, p.foot, p.contact, q, jnp.zeros(5), active)
-    return dyn.gravity_vector(p.model, q) - dyn.generalized_forces(p.model, q, jnp.zeros(5), f, active)
+    """u with G(q) = Q(q, 0, u): static equilibrium of (1) at rest. q: (n,) -> (n,)."""
+    rest = jnp.zeros(p.model.n)
+    f = ct.contact_forces(p.model, p.foot, p.contact, q, rest, active)
+    return dyn.gravity_vector(p.model, q) - dyn.generalized_forces(p.model, q, rest, f, active)
 
 
 def full_from_free(layout: Layout, x, p: OCPParams):
     """Scatter the NLP vector x into the full (N+1, s) layout, fixed entries from p."""
     base = jnp.zeros((layout.N + 1, layout.s), dtype=jnp.float64)
     q0 = jnp.asarray(p.q_start, dtype=jnp.float64)
-    base = base.at[0, 0:5].set(q0).at[0, 10:15].set(equilibrium_torques(p, q0, layout.active))
+    sl = layout.stage_slices()
+    base = base.at[0, sl["q"]].set(q0).at[0, sl["u"]].set(equilibrium_torques(p, q0, layout.active))
     idx = np.flatnonzero(layout.free_mask().ravel())
     return base.ravel().at[idx].set(x).reshape(layout.N + 1, layout.s)
 
@@ -121,8 +134,18 @@ def free_from_full(layout: Layout, Z):
     return jnp.asarray(Z).ravel()[np.flatnonzero(layout.free_mask().ravel())]
 
 
+def midpoint_slices(layout: Layout) -> dict[str, slice]:
+    """Entries of the midpoint variables r (``midpoint_map``): n each, f n_f; size 6n + n_f."""
+    n, nf = layout.n_links, layout.n_f
+    names = ("qbar", "qdbar", "dq", "dqd", "u")
+    out = {name: slice(i * n, (i + 1) * n) for i, name in enumerate(names)}
+    out["f"] = slice(5 * n, 5 * n + nf)
+    out["q1"] = slice(5 * n + nf, 6 * n + nf)
+    return out
+
+
 def midpoint_map(layout: Layout) -> np.ndarray:
-    """Constant matrix M with r = M (Z[k], Z[k+1]): the interval's midpoint variables
+    """Constant matrix M (6n + n_f, 2s) with r = M (Z[k], Z[k+1]): the interval's midpoint variables
 
         r = (qbar, qdbar, dq = q_{k+1} - q_k, dqd = qd_{k+1} - qd_k, u_k, f_k, q_{k+1})
 
@@ -130,37 +153,39 @@ def midpoint_map(layout: Layout) -> np.ndarray:
     (qbar, qdbar) (and q_{k+1} for clearance) only, so derivative sweeps need about half the
     seeds they need in (Z[k], Z[k+1]), where q_k and q_{k+1} act through qbar together.
     """
-    s, nf = layout.s, layout.n_f
-    M = np.zeros((25 + nf + 5, 2 * s))
-    I = np.eye(5)
-    q0, qd0, u, f = slice(0, 5), slice(5, 10), slice(10, 15), slice(15, 15 + nf)
-    q1, qd1 = slice(s, s + 5), slice(s + 5, s + 10)
-    M[0:5, q0], M[0:5, q1] = 0.5 * I, 0.5 * I
-    M[5:10, qd0], M[5:10, qd1] = 0.5 * I, 0.5 * I
-    M[10:15, q0], M[10:15, q1] = -I, I
-    M[15:20, qd0], M[15:20, qd1] = -I, I
-    M[20:25, u] = I
-    M[25 : 25 + nf, f] = np.eye(nf)
-    M[25 + nf :, q1] = I
+    s, n = layout.s, layout.n_links
+    sl, r = layout.stage_slices(), midpoint_slices(layout)
+    M = np.zeros((r["q1"].stop, 2 * s))
+    I = np.eye(n)
+    q0, qd0, u, f = sl["q"], sl["qd"], sl["u"], sl["f"]
+    q1, qd1 = slice(s + q0.start, s + q0.stop), slice(s + qd0.start, s + qd0.stop)
+    M[r["qbar"], q0], M[r["qbar"], q1] = 0.5 * I, 0.5 * I
+    M[r["qdbar"], qd0], M[r["qdbar"], qd1] = 0.5 * I, 0.5 * I
+    M[r["dq"], q0], M[r["dq"], q1] = -I, I
+    M[r["dqd"], qd0], M[r["dqd"], qd1] = -I, I
+    M[r["u"], u] = I
+    M[r["f"], f] = np.eye(layout.n_f)
+    M[r["q1"], q1] = I
     return M
 
 
 def interval_constraints_midpoint(layout: Layout, r, p: OCPParams):
     """Constraints of one interval as a function of its midpoint variables r (``midpoint_map``)."""
     h = p.T / layout.N
-    nf = layout.n_f
-    qbar, qdbar, dq, dqd, u = r[0:5], r[5:10], r[10:15], r[15:20], r[20:25]
-    q1 = r[25 + nf : 30 + nf]
+    sl = midpoint_slices(layout)
+    qbar, qdbar, dq, dqd, u = r[sl["qbar"]], r[sl["qdbar"]], r[sl["dq"]], r[sl["dqd"]], r[sl["u"]]
+    q1 = r[sl["q1"]]
     if layout.pseudo_static:
         qdbar_law = dq / h  # (8): the rate from the positions; equals qdbar where (6a) holds
     else:
         qdbar_law = qdbar
     f_law = ct.contact_forces(p.model, p.foot, p.contact, qbar, qdbar_law, layout.active)
-    f_used = r[25 : 25 + nf].reshape(-1, 2) if layout.augmented else f_law
+    f_used = r[sl["f"]].reshape(-1, 2) if layout.augmented else f_law
     kin_res = dq - h * qdbar  # (6a)
     if layout.pseudo_static:
         dyn_res = dyn.pseudo_static_residual(p.model, qbar, u, f_used, layout.active)  # (8)
-        f_c0 = ft.foot_reaction(p.model, qbar, jnp.zeros(5), jnp.zeros(5), f_used)
+        rest = jnp.zeros(layout.n_links)
+        f_c0 = ft.foot_reaction(p.model, qbar, rest, rest, f_used)
     else:
         qdd = dqd / h
         dyn_res = h * dyn.dynamics_residual(p.model, qbar, qdbar, qdd, u, f_used, layout.active)  # (6b)
@@ -186,22 +211,24 @@ def interval_cost(layout: Layout, za, zb, p: OCPParams, last_u):
     sl = layout.stage_slices()
     h = p.T / layout.N
     w = p.weights
+    n = layout.n_links
     u, qd0, qd1 = za[sl["u"]], za[sl["qd"]], zb[sl["qd"]]
     du = jnp.where(last_u, 0.0, 1.0) * (zb[sl["u"]] - u)
-    return h * (jnp.dot(w[:5], u**2) + w[5] * jnp.dot(qd0, qd0)) + (w[6] * jnp.dot(qd1 - qd0, qd1 - qd0) + w[7] * jnp.dot(du, du)) / h
+    effort = h * (jnp.dot(w[:n], u**2) + w[n] * jnp.dot(qd0, qd0))
+    return effort + (w[n + 1] * jnp.dot(qd1 - qd0, qd1 - qd0) + w[n + 2] * jnp.dot(du, du)) / h
 
 
 def objective_terms(layout: Layout, Z, p: OCPParams):
     """The four terms of (7) for the whole trajectory (for reports)."""
     sl = layout.stage_slices()
     h = p.T / layout.N
-    w = p.weights
+    w, n = p.weights, layout.n_links
     U, QD = Z[:-1, sl["u"]], Z[:, sl["qd"]]
     return {
-        "torque": h * jnp.sum(U**2 @ w[:5]),
-        "velocity": h * w[5] * jnp.sum(QD[:-1] ** 2),
-        "acceleration": w[6] * jnp.sum(jnp.diff(QD, axis=0) ** 2) / h,
-        "torque_rate": w[7] * jnp.sum(jnp.diff(U, axis=0) ** 2) / h,
+        "torque": h * jnp.sum(U**2 @ w[:n]),
+        "velocity": h * w[n] * jnp.sum(QD[:-1] ** 2),
+        "acceleration": w[n + 1] * jnp.sum(jnp.diff(QD, axis=0) ** 2) / h,
+        "torque_rate": w[n + 2] * jnp.sum(jnp.diff(U, axis=0) ** 2) / h,
     }
 
 
@@ -221,14 +248,28 @@ def total_cost(layout: Layout, Z, p: OCPParams):
     return jnp.sum(jax.vmap(interval_cost, in_axes=(None, 0, 0, None, 0))(layout, za, zb, p, last))
 
 
-def default_params(task, contact: ContactParams | None = None, T: float = 5.0, weights=None) -> OCPParams:
+def default_params(
+    task,
+    contact: ContactParams | None = None,
+    T: float = 5.0,
+    weights=None,
+    model: PlanarChain | None = None,
+    foot: FootParams | None = None,
+) -> OCPParams:
+    """Parameters of ``task`` for ``model`` (default the humanoid) on ``foot`` (default the paper's),
+    with the ``contact`` law (default nominal) and the task's weights unless ``weights`` (n + 3,)."""
     task = tasks_mod.get_task(task)
-    w = task.weights.as_array() if weights is None else np.asarray(weights, dtype=float)
-    if w.shape != (8,) or not np.all(np.isfinite(w)) or np.any(w < 0):
-        raise ValueError(f"weights: expected 8 finite weights >= 0 (w_u1..w_u5, w_qd, w_dqd, w_du), got {weights!r}")
+    model = PlanarChain.humanoid() if model is None else model
+    n = model.n
+    if task.n != n:
+        raise ValueError(f"model: task {task.key} is posed for {task.n} joints, the chain has {n} links")
+    w = task.weights.as_array(n) if weights is None else np.asarray(weights, dtype=float)
+    if w.shape != (n + 3,) or not np.all(np.isfinite(w)) or np.any(w < 0):
+        raise ValueError(f"weights: expected {n + 3} finite weights >= 0 (w_u1..w_u{n}, w_qd, w_dqd, w_du), "
+                         f"got {weights!r}")
     return OCPParams(
-        model=Humanoid.paper(),
-        foot=FootParams.paper(),
+        model=model,
+        foot=FootParams.paper() if foot is None else foot,
         contact=ContactParams.nominal() if contact is None else contact,
         weights=jnp.asarray(w),
         T=jnp.asarray(float(T)),
@@ -236,17 +277,19 @@ def default_params(task, contact: ContactParams | None = None, T: float = 5.0, w
     )
 
 
-def bounds_full(layout: Layout, goal, goal_tol=tasks_mod.GOAL_TOLERANCE):
-    """Lower/upper bounds in the full layout (N+1, s): joint ranges, goal box, torque and force boxes."""
+def bounds_full(layout: Layout, goal, q_min, q_max, goal_tol=tasks_mod.GOAL_TOLERANCE):
+    """Lower/upper bounds in the full layout (N+1, s): joint ranges q_min/q_max (n,), goal box,
+    torque and force boxes."""
+    sl = layout.stage_slices()
     lo = np.full((layout.N + 1, layout.s), -np.inf)
     hi = np.full((layout.N + 1, layout.s), np.inf)
-    lo[:, 0:5], hi[:, 0:5] = tasks_mod.Q_MIN, tasks_mod.Q_MAX
-    lo[-1, 0:5] = np.maximum(tasks_mod.Q_MIN, goal - goal_tol)
-    hi[-1, 0:5] = np.minimum(tasks_mod.Q_MAX, goal + goal_tol)
-    lo[:, 10:15], hi[:, 10:15] = -tasks_mod.TORQUE_LIMIT, tasks_mod.TORQUE_LIMIT
+    lo[:, sl["q"]], hi[:, sl["q"]] = q_min, q_max
+    lo[-1, sl["q"]] = np.maximum(q_min, goal - goal_tol)
+    hi[-1, sl["q"]] = np.minimum(q_max, goal + goal_tol)
+    lo[:, sl["u"]], hi[:, sl["u"]] = -tasks_mod.TORQUE_LIMIT, tasks_mod.TORQUE_LIMIT
     if layout.augmented:
-        lo[:, 15:] = np.tile([-tasks_mod.CONTACT_FORCE_LIMIT, 0.0], len(layout.active))
-        hi[:, 15:] = tasks_mod.CONTACT_FORCE_LIMIT
+        lo[:, sl["f"]] = np.tile([-tasks_mod.CONTACT_FORCE_LIMIT, 0.0], len(layout.active))
+        hi[:, sl["f"]] = tasks_mod.CONTACT_FORCE_LIMIT
     return lo, hi
 
 
@@ -257,8 +300,9 @@ def initial_guess_full(layout: Layout, start, goal, T) -> np.ndarray:
     the interpolation starts at node 1: q_1 = q_0 and qd_1 = 0, then linear to the goal at node N.
     """
     N = layout.N
+    sl = layout.stage_slices()
     Z = np.zeros((N + 1, layout.s))
     frac = np.clip((np.arange(N + 1) - 1) / (N - 1), 0.0, 1.0)[:, None]
-    Z[:, 0:5] = (1 - frac) * start + frac * goal
-    Z[2 : N - 1, 5:10] = (goal - start) / (T * (N - 1) / N)
+    Z[:, sl["q"]] = (1 - frac) * start + frac * goal
+    Z[2 : N - 1, sl["qd"]] = (goal - start) / (T * (N - 1) / N)
     return Z

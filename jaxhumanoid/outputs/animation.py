@@ -107,8 +107,8 @@ def animate(sol, path, fps: float = 15.0, max_frames: int = 60, show_forces: boo
     ax = fig.add_subplot()
     draw_ground(ax, x0, x1)
     draw_foot(ax, geo)
-    ghost = None if warm is None else draw_stick(ax, warm[0], WARM_COLOR, lw=1.6, alpha=0.3, zorder=3)
-    figure = draw_stick(ax, pts[0], FINAL_COLOR, lw=2.6, zorder=4)
+    ghost = None if warm is None else draw_stick(ax, warm[0], WARM_COLOR, geo["head"], lw=1.6, alpha=0.3, zorder=3)
+    figure = draw_stick(ax, pts[0], FINAL_COLOR, geo["head"], lw=2.6, zorder=4)
     ax.set_xlim(x0, x1)
     ax.set_ylim(y0, y1)
     ax.set_aspect("equal", adjustable="box")
@@ -125,7 +125,8 @@ def animate(sol, path, fps: float = 15.0, max_frames: int = 60, show_forces: boo
         active, f_contact, foot, cop = _forces_at(sol, times)
         largest = max(float(np.abs(f_contact).max(initial=0.0)), float(np.abs(foot).max(initial=0.0)), 1.0)
         scale = force_scale if force_scale is not None else ARROW_LENGTH_M / largest
-        quiver: dict[str, Any] = {"angles": "xy", "scale_units": "xy", "scale": 1.0 / scale, "width": 0.006, "zorder": 5}
+        quiver: dict[str, Any] = {"angles": "xy", "scale_units": "xy", "scale": 1.0 / scale, "width": 0.006,
+                                  "zorder": 5}
         contact_q = ax.quiver(np.zeros(active.size), np.zeros(active.size), np.zeros(active.size),
                               np.zeros(active.size), color=CONTACT_ARROW_COLOR, **quiver)
         foot_q = ax.quiver([0.0], [0.0], [0.0], [0.0], color=FOOT_ARROW_COLOR, **quiver)

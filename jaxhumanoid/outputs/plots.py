@@ -4,10 +4,11 @@ Top: a strip of stick-figure frames of the final trajectory (light blue) over th
 stage-1 warm start (red), packed side by side on one ground line. Bottom: joint angles, input
 torques and absolute contact forces against time.
 
-Everything here is numpy + matplotlib (no JAX): positions are recomputed from
+The computations are numpy + matplotlib (no JAX): positions are recomputed from
 ``sol.geometry`` with the conventions of :mod:`jaxhumanoid.model` (O_0 = (0, ankle_height),
-theta_l = q_1 + ... + q_l from +x, toes at x = -a0f, heel at x = +a0b). Figures are
-:class:`matplotlib.figure.Figure` objects, so no pyplot state or global backend is touched.
+theta_l = q_1 + ... + q_l from +x, toes at x = -a0f, heel at x = +a0b), for a chain of any
+number n of links, labelled with its joint names. Figures are :class:`matplotlib.figure.Figure`
+objects, so no pyplot state or global backend is touched.
 """
 
 from __future__ import annotations
@@ -22,18 +23,32 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Circle
 
-CONTACT_NAMES = ("knee", "hip", "shoulder", "elbow", "hand")  # O_1..O_5
-ACTUATED_NAMES = ("ankle", "knee", "hip", "shoulder", "elbow")  # joint of q_j and u_j
-JOINT_COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b")
+from jaxhumanoid.model.params import default_joint_names
+
+# Colours of the joints O_1, O_2, ... (cycled beyond ten joints); red is kept for the warm start.
+JOINT_COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b",
+                "#e377c2", "#17becf", "#bcbd22", "#7f7f7f", "#aec7e8")
 FINAL_COLOR = "#5aaee8"  # light blue, final trajectory
 WARM_COLOR = "#d62728"  # red, stage-1 warm start
-PUSH_COLORS = ("#2ca02c", "#d62728")  # hand f_t >= 0 (green), f_t < 0 (red)
-HEAD_RADIUS = 0.10  # m, drawn beyond the shoulder along the trunk
+PUSH_COLORS = ("#2ca02c", "#d62728")  # distal joint's f_t >= 0 (green), f_t < 0 (red)
+HEAD_JOINT = "shoulder"  # a chain with a joint of this name gets a head, drawn beyond it along the trunk
+HEAD_RADIUS = 0.10  # m
 GEOMETRY_KEYS = ("a", "ankle_height", "a0f", "a0b")
 
 
-def geometry_of(sol) -> dict[str, np.ndarray]:
-    """Link lengths and foot dimensions from ``sol.geometry`` as floats / a (5,) array."""
+def joint_color(j: int) -> str:
+    """Colour of joint O_{j+1} (j counted from 0)."""
+    return JOINT_COLORS[j % len(JOINT_COLORS)]
+
+
+def actuated_names(names) -> tuple[str, ...]:
+    """Joint of q_j and u_j for j = 1..n: the ankle O_0, then O_1..O_{n-1}."""
+    return ("ankle", *tuple(names)[:-1])
+
+
+def geometry_of(sol) -> dict[str, Any]:
+    """Link lengths a (n,), joint names (n,), the row of the head's joint in the (n + 1, 2) joint
+    positions (``head``, None without a shoulder) and the foot dimensions from ``sol.geometry``."""
     geo = getattr(sol, "geometry", None)
     if not isinstance(geo, dict):
         raise ValueError(f"sol.geometry: expected a dict with keys {GEOMETRY_KEYS}, got {type(geo).__name__}")
@@ -41,9 +56,12 @@ def geometry_of(sol) -> dict[str, np.ndarray]:
     if missing:
         raise ValueError(f"sol.geometry: missing keys {missing} (need {GEOMETRY_KEYS})")
     a = np.asarray(geo["a"], dtype=float)
-    if a.shape != (5,):
-        raise ValueError(f"sol.geometry['a']: expected 5 link lengths, got shape {a.shape}")
-    out: dict[str, Any] = {"a": a}
+    if a.ndim != 1 or a.size < 2:
+        raise ValueError(f"sol.geometry['a']: expected the lengths of n >= 2 links, got shape {a.shape}")
+    names = tuple(str(x) for x in geo.get("names", default_joint_names(a.size)))
+    if len(names) != a.size:
+        raise ValueError(f"sol.geometry['names']: expected {a.size} joint names, got {names}")
+    out: dict[str, Any] = {"a": a, "names": names, "head": names.index(HEAD_JOINT) + 1 if HEAD_JOINT in names else None}
     for key in GEOMETRY_KEYS[1:]:
         out[key] = float(np.asarray(geo[key]))
     return out
@@ -57,32 +75,32 @@ def check_solution(sol) -> int:
     if not np.all(np.diff(t) > 0):
         raise ValueError("sol.t: node times must be strictly increasing")
     n = t.size - 1
+    k = geometry_of(sol)["a"].size
     expected = {
-        "q": (n + 1, 5),
-        "qd": (n + 1, 5),
-        "u": (n, 5),
-        "f_contact": (n, 5, 2),
-        "gaps": (n + 1, 5),
+        "q": (n + 1, k),
+        "qd": (n + 1, k),
+        "u": (n, k),
+        "f_contact": (n, k, 2),
+        "gaps": (n + 1, k),
         "foot_reaction": (n, 2),
         "foot_margins": (n, 5),
     }
     for name, shape in expected.items():
         got = np.shape(getattr(sol, name))
         if got != shape:
-            raise ValueError(f"sol.{name}: expected shape {shape} for N = {n} intervals, got {got}")
+            raise ValueError(f"sol.{name}: expected shape {shape} for N = {n} intervals of {k} links, got {got}")
     for i in sol.active:
-        if not 1 <= int(i) <= 5:
-            raise ValueError(f"sol.active: contact indices must be in 1..5 (knee..hand), got {tuple(sol.active)}")
+        if not 1 <= int(i) <= k:
+            raise ValueError(f"sol.active: contact indices must be in 1..{k} (O_1..O_{k}), got {tuple(sol.active)}")
     if sol.warm_start is not None:
         wt, wq = np.asarray(sol.warm_start.get("t")), np.asarray(sol.warm_start.get("q"))
-        if wt.ndim != 1 or wq.shape != (wt.size, 5) or wt.size < 2:
-            raise ValueError(f"sol.warm_start: expected t (M,) and q (M, 5), got shapes {wt.shape} and {wq.shape}")
-    geometry_of(sol)
+        if wt.ndim != 1 or wq.shape != (wt.size, k) or wt.size < 2:
+            raise ValueError(f"sol.warm_start: expected t (M,) and q (M, {k}), got shapes {wt.shape} and {wq.shape}")
     return n
 
 
 def joint_positions(geometry: dict, q) -> np.ndarray:
-    """Positions of O_0..O_5 (ankle, knee, hip, shoulder, elbow, hand). q: (..., 5) -> (..., 6, 2)."""
+    """Positions of O_0 (ankle) and O_1..O_n. q: (..., n) -> (..., n + 1, 2)."""
     q = np.asarray(q, dtype=float)
     theta = np.cumsum(q, axis=-1)
     links = np.asarray(geometry["a"])[:, None] * np.stack([np.cos(theta), np.sin(theta)], axis=-1)
@@ -91,11 +109,12 @@ def joint_positions(geometry: dict, q) -> np.ndarray:
     return o0 + rel
 
 
-def head_centre(points: np.ndarray) -> np.ndarray:
-    """Centre of the head circle, just beyond the shoulder along the trunk. (..., 6, 2) -> (..., 2)."""
-    trunk = points[..., 3, :] - points[..., 2, :]
+def head_centre(points: np.ndarray, head: int) -> np.ndarray:
+    """Centre of the head circle, just beyond joint row ``head`` along the link ending there (the
+    trunk). points: (..., n + 1, 2) -> (..., 2)."""
+    trunk = points[..., head, :] - points[..., head - 1, :]
     unit = trunk / np.linalg.norm(trunk, axis=-1, keepdims=True)
-    return points[..., 3, :] + 1.2 * HEAD_RADIUS * unit
+    return points[..., head, :] + 1.2 * HEAD_RADIUS * unit
 
 
 def interpolate(t, values, times) -> np.ndarray:
@@ -133,29 +152,35 @@ def draw_ground(ax, x0: float, x1: float):
     ax.fill_between([x0, x1], [-0.06, -0.06], [0.0, 0.0], color="0.88", lw=0, zorder=0)
 
 
-def draw_stick(ax, points, color, lw=2.2, alpha=1.0, zorder=3):
-    """One stick figure (links, joint dots, head); returns (line, head) for later updates."""
+def draw_stick(ax, points, color, head=None, lw=2.2, alpha=1.0, zorder=3):
+    """One stick figure (links, joint dots and, when ``head`` is a joint row, a head); returns
+    (line, head patch, head) for :func:`update_stick` (patch and head None without a head)."""
     (line,) = ax.plot(points[:, 0], points[:, 1], "-o", color=color, lw=lw, ms=2.5 * lw / 2.2,
                       alpha=alpha, zorder=zorder, solid_capstyle="round", solid_joinstyle="round")
-    head = Circle(head_centre(points), HEAD_RADIUS, facecolor="none", edgecolor=color, lw=lw,
-                  alpha=alpha, zorder=zorder)
-    ax.add_patch(head)
-    return line, head
+    if head is None:
+        return line, None, None
+    patch = Circle(head_centre(points, head), HEAD_RADIUS, facecolor="none", edgecolor=color, lw=lw,
+                   alpha=alpha, zorder=zorder)
+    ax.add_patch(patch)
+    return line, patch, head
 
 
 def update_stick(artists, points):
     """Move a stick figure drawn by :func:`draw_stick` to new joint positions."""
-    line, head = artists
+    line, patch, head = artists
     line.set_data(points[:, 0], points[:, 1])
-    head.center = tuple(head_centre(points))
+    if patch is not None:
+        patch.center = tuple(head_centre(points, head))
 
 
 def frame_extent(geometry: dict, points) -> tuple[float, float]:
     """Horizontal extent (xmin, xmax) of one or more stick figures plus the foot."""
-    pts = np.asarray(points).reshape(-1, 6, 2)
-    heads = head_centre(pts)
-    xs = np.concatenate([pts[..., 0].ravel(), heads[:, 0] - HEAD_RADIUS, heads[:, 0] + HEAD_RADIUS,
-                         [-geometry["a0f"], geometry["a0b"]]])
+    pts = np.asarray(points).reshape(-1, geometry["a"].size + 1, 2)
+    parts = [pts[..., 0].ravel(), np.array([-geometry["a0f"], geometry["a0b"]])]
+    if geometry["head"] is not None:
+        heads = head_centre(pts, geometry["head"])
+        parts += [heads[:, 0] - HEAD_RADIUS, heads[:, 0] + HEAD_RADIUS]
+    xs = np.concatenate(parts)
     return float(xs.min()), float(xs.max())
 
 
@@ -191,11 +216,11 @@ def _frames_panel(ax, sol, geo, times):
     for i, ti in enumerate(times):
         draw_foot(ax, geo, offsets[i])
         if warm is not None:
-            draw_stick(ax, warm[i] + offsets[i] * shift, WARM_COLOR, lw=1.6, alpha=0.6, zorder=3)
-        draw_stick(ax, pts[i] + offsets[i] * shift, FINAL_COLOR, lw=2.4, zorder=4)
+            draw_stick(ax, warm[i] + offsets[i] * shift, WARM_COLOR, geo["head"], lw=1.6, alpha=0.6, zorder=3)
+        draw_stick(ax, pts[i] + offsets[i] * shift, FINAL_COLOR, geo["head"], lw=2.4, zorder=4)
         ax.text(offsets[i], -0.1, f"{ti:.2f} s", ha="center", va="top", fontsize=8)
     x0, x1 = -0.15, offsets[-1] + extents[-1][1] + 0.15
-    ymax = max(float(both[..., 1].max()) + 2.3 * HEAD_RADIUS, 0.5)
+    ymax = max(float(both[..., 1].max()) + (2.3 * HEAD_RADIUS if geo["head"] is not None else 0.05), 0.5)
     draw_ground(ax, x0, x1)
     ax.set_xlim(x0, x1)
     ax.set_ylim(-0.28, ymax + 0.05)
@@ -213,20 +238,19 @@ def _frames_panel(ax, sol, geo, times):
               bbox_to_anchor=(1.0, 1.12))
 
 
-def _angles_panel(ax, sol):
+def _angles_panel(ax, sol, geo):
     q_deg = np.degrees(np.asarray(sol.q))
-    for j in range(5):
-        ax.plot(sol.t, q_deg[:, j], color=JOINT_COLORS[j], lw=1.5, label=f"$q_{j + 1}$ ({ACTUATED_NAMES[j]})")
+    for j, name in enumerate(actuated_names(geo["names"])):
+        ax.plot(sol.t, q_deg[:, j], color=joint_color(j), lw=1.5, label=f"$q_{{{j + 1}}}$ ({name})")
     ax.set_xlabel("time t (s)")
     ax.set_ylabel("joint angle (deg)")
     ax.set_title("configuration angles", fontsize=10)
     ax.legend(fontsize=7, ncols=2)
 
 
-def _torques_panel(ax, sol):
-    for j in range(5):
-        ax.stairs(np.asarray(sol.u)[:, j], sol.t, color=JOINT_COLORS[j], lw=1.5,
-                  label=f"$u_{j + 1}$ ({ACTUATED_NAMES[j]})")
+def _torques_panel(ax, sol, geo):
+    for j, name in enumerate(actuated_names(geo["names"])):
+        ax.stairs(np.asarray(sol.u)[:, j], sol.t, color=joint_color(j), lw=1.5, label=f"$u_{{{j + 1}}}$ ({name})")
     ax.axhline(0.0, color="0.6", lw=0.6)
     ax.set_xlabel("time t (s)")
     ax.set_ylabel("input torque (N m)")
@@ -243,22 +267,25 @@ def _signed_segments(t, values, sign_source):
     return segments, colors
 
 
-def _forces_panel(ax, sol):
+def _forces_panel(ax, sol, geo):
+    """|f_n| and |f_t| of the active contacts; the distal joint O_n (the hand) pushes and pulls, so
+    its f_t is coloured by sign."""
     tm = midpoints(sol.t)
     f = np.asarray(sol.f_contact)
+    names = geo["names"]
     handles = []
     for i in sorted(int(k) for k in sol.active):
-        name, ft, fn = CONTACT_NAMES[i - 1], f[:, i - 1, 0], f[:, i - 1, 1]
-        if name == "hand":
+        name, ft, fn = names[i - 1], f[:, i - 1, 0], f[:, i - 1, 1]
+        if i == len(names):
             ax.plot(tm, np.abs(fn), color="0.15", lw=1.4, zorder=3)
-            handles.append(Line2D([], [], color="0.15", lw=1.4, label=r"hand $|f_n|$"))
+            handles.append(Line2D([], [], color="0.15", lw=1.4, label=f"{name} $|f_n|$"))
             if tm.size > 1:
                 segs, colors = _signed_segments(tm, np.abs(ft), ft)
                 ax.add_collection(LineCollection(segs, colors=colors, lw=2.0, zorder=4))
-            handles += [Line2D([], [], color=PUSH_COLORS[0], lw=2.0, label=r"hand $|f_t|$, $f_t \geq 0$"),
-                        Line2D([], [], color=PUSH_COLORS[1], lw=2.0, label=r"hand $|f_t|$, $f_t < 0$")]
+            handles += [Line2D([], [], color=PUSH_COLORS[0], lw=2.0, label=f"{name} $|f_t|$, " + r"$f_t \geq 0$"),
+                        Line2D([], [], color=PUSH_COLORS[1], lw=2.0, label=f"{name} $|f_t|$, " + r"$f_t < 0$")]
         else:
-            color = JOINT_COLORS[i - 1]
+            color = joint_color(i - 1)
             ax.plot(tm, np.abs(fn), color=color, lw=1.3)
             ax.plot(tm, np.abs(ft), color=color, lw=1.3, ls=":")
             handles += [Line2D([], [], color=color, lw=1.3, label=f"{name} $|f_n|$"),
@@ -301,9 +328,9 @@ def plot_solution(sol, path=None, n_frames: int = 8, dpi: int = 120) -> Figure:
     panels_h = 3.4
     fig.set_size_inches(width, strip_h + panels_h + 0.4)
     grid.set_height_ratios([strip_h, panels_h])
-    _angles_panel(fig.add_subplot(grid[1, 0]), sol)
-    _torques_panel(fig.add_subplot(grid[1, 1]), sol)
-    _forces_panel(fig.add_subplot(grid[1, 2]), sol)
+    _angles_panel(fig.add_subplot(grid[1, 0]), sol, geo)
+    _torques_panel(fig.add_subplot(grid[1, 1]), sol, geo)
+    _forces_panel(fig.add_subplot(grid[1, 2]), sol, geo)
     fig.suptitle(_title(sol), fontsize=11)
     if path is not None:
         save_png(fig, path, dpi=dpi)

@@ -19,7 +19,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 
-from jaxhumanoid.outputs.plots import CONTACT_NAMES, JOINT_COLORS, check_solution, geometry_of, midpoints, save_png
+from jaxhumanoid.outputs.plots import check_solution, geometry_of, joint_color, midpoints, save_png
 
 FORCE_THRESHOLD_N = 20.0
 GAP_THRESHOLD_M = 0.005
@@ -45,7 +45,7 @@ def intervals_from_mask(t, mask) -> list[tuple[float, float]]:
 
 
 def contact_mask(sol, force_threshold: float = FORCE_THRESHOLD_N, gap_threshold: float = GAP_THRESHOLD_M):
-    """Boolean (N, 5) contact state of O_1..O_5 on each interval, and the criterion used per joint."""
+    """Boolean (N, n) contact state of O_1..O_n on each interval, and the criterion used per joint."""
     check_solution(sol)
     _check_thresholds(force_threshold, gap_threshold)
     f_n = np.asarray(sol.f_contact, dtype=float)[:, :, 1]
@@ -54,7 +54,7 @@ def contact_mask(sol, force_threshold: float = FORCE_THRESHOLD_N, gap_threshold:
     active = {int(i) for i in sol.active}
     mask = np.empty(f_n.shape, dtype=bool)
     criteria = []
-    for j in range(5):
+    for j in range(f_n.shape[1]):
         if j + 1 in active:
             mask[:, j] = f_n[:, j] > force_threshold
             criteria.append("force")
@@ -66,25 +66,26 @@ def contact_mask(sol, force_threshold: float = FORCE_THRESHOLD_N, gap_threshold:
 
 def contact_intervals(sol, force_threshold: float = FORCE_THRESHOLD_N,
                       gap_threshold: float = GAP_THRESHOLD_M) -> dict[str, list[tuple[float, float]]]:
-    """Contact spans per joint: {"knee": [(t_start, t_end), ...], ..., "hand": [...]} (seconds).
+    """Contact spans per joint name: {"knee": [(t_start, t_end), ...], ..., "hand": [...]} (seconds).
 
     Joints in ``sol.active`` are in contact where f_n > ``force_threshold`` (N); the others where
     the gap is below ``gap_threshold`` (m). JSON-serialisable (tuples become lists).
     """
     mask, _ = contact_mask(sol, force_threshold, gap_threshold)
-    return {name: intervals_from_mask(sol.t, mask[:, j]) for j, name in enumerate(CONTACT_NAMES)}
+    return {name: intervals_from_mask(sol.t, mask[:, j]) for j, name in enumerate(geometry_of(sol)["names"])}
 
 
 def contact_summary(sol, force_threshold: float = FORCE_THRESHOLD_N,
                     gap_threshold: float = GAP_THRESHOLD_M) -> dict:
     """JSON-ready record of the contact sequence for report.json."""
     mask, criteria = contact_mask(sol, force_threshold, gap_threshold)
+    names = geometry_of(sol)["names"]
     return {
         "force_threshold_N": float(force_threshold),
         "gap_threshold_m": float(gap_threshold),
-        "criterion": dict(zip(CONTACT_NAMES, criteria)),
+        "criterion": dict(zip(names, criteria)),
         "intervals": {name: [list(span) for span in intervals_from_mask(sol.t, mask[:, j])]
-                      for j, name in enumerate(CONTACT_NAMES)},
+                      for j, name in enumerate(names)},
     }
 
 
@@ -105,16 +106,16 @@ def foot_margins(sol) -> dict[str, np.ndarray]:
     return {"t": midpoints(sol.t), "f_n0": f_n0, "friction_slack": slack, "cop": cop}
 
 
-def _gantt_panel(ax, sol, mask, criteria):
+def _gantt_panel(ax, sol, mask, criteria, names):
     t = np.asarray(sol.t, dtype=float)
-    for j in range(len(CONTACT_NAMES)):
+    for j in range(len(names)):
         spans = [(a, b - a) for a, b in intervals_from_mask(t, mask[:, j])]
         by_force = criteria[j] == "force"
-        ax.broken_barh(spans, (j - 0.35, 0.7), facecolors=JOINT_COLORS[j] if by_force else "none",
-                       edgecolors=JOINT_COLORS[j], hatch=None if by_force else "///", lw=1.0)
-    labels = [f"{name} (O$_{j + 1}$)" for j, name in enumerate(CONTACT_NAMES)]
-    ax.set_yticks(range(5), labels)
-    ax.set_ylim(4.6, -0.6)
+        ax.broken_barh(spans, (j - 0.35, 0.7), facecolors=joint_color(j) if by_force else "none",
+                       edgecolors=joint_color(j), hatch=None if by_force else "///", lw=1.0)
+    labels = [f"{name} (O$_{{{j + 1}}}$)" for j, name in enumerate(names)]
+    ax.set_yticks(range(len(names)), labels)
+    ax.set_ylim(len(names) - 0.4, -0.6)
     ax.set_xlim(t[0], t[-1])
     ax.grid(axis="x", color="0.9")
     ax.set_ylabel("joint in contact")
@@ -158,7 +159,7 @@ def _cop_panel(ax, t, margins, geo):
 
 def plot_contact_timeline(sol, path=None, force_threshold: float = FORCE_THRESHOLD_N,
                           gap_threshold: float = GAP_THRESHOLD_M, dpi: int = 120) -> Figure:
-    """Gantt chart of knee/hip/shoulder/elbow/hand contacts plus the steady-foot margins.
+    """Gantt chart of the contacts of O_1..O_n (the humanoid: knee ... hand) plus the steady-foot margins.
 
     Saved as PNG when ``path`` is given; returns the :class:`~matplotlib.figure.Figure`.
     """
@@ -167,10 +168,10 @@ def plot_contact_timeline(sol, path=None, force_threshold: float = FORCE_THRESHO
     margins = foot_margins(sol)
     mu = sol.geometry.get("mu")
     mu_label = "" if mu is None else rf", $\mu$ = {float(np.asarray(mu)):g}"
-    fig = Figure(figsize=(10, 7.5), layout="constrained")
+    fig = Figure(figsize=(10, 6.3 + 0.24 * len(geo["names"])), layout="constrained")
     FigureCanvasAgg(fig)
     ax_gantt, ax_fric, ax_cop = fig.subplots(3, 1, sharex=True, height_ratios=[1.2, 1.0, 1.0])
-    _gantt_panel(ax_gantt, sol, mask, criteria)
+    _gantt_panel(ax_gantt, sol, mask, criteria, geo["names"])
     _friction_panel(ax_fric, sol.t, margins, mu_label)
     _cop_panel(ax_cop, sol.t, margins, geo)
     ax_gantt.tick_params(labelbottom=True)

@@ -1,14 +1,15 @@
-"""One NLP instance: task + scheme + grid -> (NLP, bounds, parameters, layout)."""
+"""One NLP instance: task + scheme + grid + body -> (NLP, bounds, parameters, layout)."""
 
 from __future__ import annotations
 
 import dataclasses
 import functools
 
+import jax.numpy as jnp
 import numpy as np
 
 from jaxhumanoid.derivatives.stagewise import stagewise_nlp
-from jaxhumanoid.model.params import ContactParams
+from jaxhumanoid.model.params import ContactParams, FootParams, PlanarChain
 from jaxhumanoid.ocp import tasks as tasks_mod
 from jaxhumanoid.ocp import transcription as tr
 from jaxhumanoid.ocp.nlp import NLP, Bounds
@@ -24,15 +25,44 @@ class Problem:
     bounds: Bounds
     p: tr.OCPParams
 
+    @property
+    def model(self) -> PlanarChain:
+        """The body the problem moves."""
+        return self.p.model
+
+    def joint_ranges(self) -> tuple[np.ndarray, np.ndarray]:
+        """(q_min, q_max), (n,) each: the joint ranges in the bounds (the task's, else the body's)."""
+        return self.task.joint_ranges(self.model)
+
     def full(self, x) -> np.ndarray:
         """The (N+1, s) full layout of an NLP vector."""
         return np.asarray(tr.full_from_free(self.layout, x, self.p))
 
 
+def pattern_params(n_links: int) -> tr.OCPParams:
+    """Parameters at which the sparsity patterns of an ``n_links`` transcription are detected.
+
+    The patterns depend on the layout only, and the NLP of a layout serves every body with that
+    many links, so they are detected for a chain with distinct, generic values: no derivative entry
+    vanishes through a coincidence of numbers (a COM exactly at a joint, a zero weight).
+    """
+    i = np.arange(n_links)
+    a = 0.5 - 0.03 * i
+    m = 10.0 + 3.0 * i
+    model = PlanarChain(a=a, c=0.4 * a, m=m, inertia=m * a**2 / 12.0)
+    return tr.OCPParams(
+        model=model,
+        foot=FootParams.paper(),
+        contact=ContactParams.nominal(),
+        weights=jnp.asarray(np.linspace(1.0, 2.0, n_links + 3)),
+        T=jnp.asarray(5.0),
+        q_start=jnp.zeros(n_links),
+    )
+
+
 @functools.lru_cache(maxsize=64)
 def _cached_nlp(layout: tr.Layout) -> NLP:
-    # Patterns depend on the layout only; detect them at a representative parameter set.
-    return stagewise_nlp(layout, tr.default_params("T1"), name=f"N={layout.N}")
+    return stagewise_nlp(layout, pattern_params(layout.n_links), name=f"N={layout.N}")
 
 
 def build_problem(
@@ -44,11 +74,15 @@ def build_problem(
     contact: ContactParams | None = None,
     weights=None,
     q_start=None,
+    model: PlanarChain | None = None,
+    foot: FootParams | None = None,
 ) -> Problem:
     """The NLP (7) of one task under one scheme on an N-interval grid (one stage of a strategy).
 
     ``pseudo_static`` selects model (8) instead of (6b); ``contact`` defaults to the nominal law;
-    ``q_start`` overrides the task's start posture (used by the 2S stage 1 re-seating).
+    ``model`` (the body, default ``PlanarChain.humanoid()``) must have as many links as the task has
+    joints; ``foot`` defaults to ``FootParams.paper()``; ``q_start`` overrides the task's start
+    posture (used by the 2S stage 1 re-seating).
     """
     task = tasks_mod.get_task(task)
     scheme = parse_scheme(scheme)
@@ -56,12 +90,18 @@ def build_problem(
         raise ValueError(f"N: expected an integer number of intervals >= 3, got {N!r}")
     if not np.isfinite(T) or T <= 0:
         raise ValueError(f"T: expected a positive horizon in seconds, got {T!r}")
-    layout = tr.Layout(int(N), scheme.active_set(task.active), scheme.augmented, scheme.clearance, bool(pseudo_static))
-    p = tr.default_params(task, contact=contact, T=T, weights=weights)
+    p = tr.default_params(task, contact=contact, T=T, weights=weights, model=model, foot=foot)
+    n = p.model.n
+    layout = tr.Layout(N=int(N), active=scheme.active_set(task.active, n), augmented=scheme.augmented,
+                       clearance=scheme.clearance, pseudo_static=bool(pseudo_static), n_links=n)
     if q_start is not None:
-        p = dataclasses.replace(p, q_start=np.asarray(q_start, dtype=float))
+        q_start = np.asarray(q_start, dtype=float)
+        if q_start.shape != (n,):
+            raise ValueError(f"q_start: expected shape ({n},), got {q_start.shape}")
+        p = dataclasses.replace(p, q_start=q_start)
     nlp = _cached_nlp(layout)
-    lo, hi = tr.bounds_full(layout, task.goal)
+    q_min, q_max = task.joint_ranges(p.model)
+    lo, hi = tr.bounds_full(layout, task.goal, q_min, q_max)
     free = layout.free_mask()
     kinds = np.tile(layout.constraint_kinds(), layout.N)
     Z0 = tr.initial_guess_full(layout, np.asarray(p.q_start), task.goal, T)
@@ -77,8 +117,9 @@ def build_problem(
     return Problem(task, scheme, layout, nlp, bounds, p)
 
 
-def stage_problem(task, scheme, N: int, pseudo_static: bool) -> Problem:
+def stage_problem(task, scheme, N: int, pseudo_static: bool, model: PlanarChain | None = None,
+                  foot: FootParams | None = None) -> Problem:
     """The NLP of one stage: the dynamic problem (6) with the nominal contact law, or the
     pseudo-static problem (8) of stage 1 with the relaxed law (``ContactParams.relaxed``)."""
     contact = ContactParams.relaxed() if pseudo_static else None
-    return build_problem(task, scheme, N=N, pseudo_static=pseudo_static, contact=contact)
+    return build_problem(task, scheme, N=N, pseudo_static=pseudo_static, contact=contact, model=model, foot=foot)

@@ -1,16 +1,19 @@
 """A solved trajectory: arrays on the time grid, per-stage solver statistics, save and load.
 
-Shapes (N intervals, N + 1 nodes; joints O_1..O_5 = knee, hip, shoulder, elbow, hand):
+Shapes (N intervals, N + 1 nodes; a chain of n links with joints O_1..O_n, named in
+``geometry["names"]``; the humanoid: knee, hip, shoulder, elbow, hand):
 
     t            (N+1,)      node times (s)
-    q, qd        (N+1, 5)    joint angles (rad) and rates (rad/s) at the nodes
-    u            (N, 5)      joint torques (N m), constant on each interval
-    f_contact    (N, 5, 2)   contact forces (f_t, f_n) at O_1..O_5 at the interval midpoints (N);
+    q, qd        (N+1, n)    joint angles (rad) and rates (rad/s) at the nodes
+    u            (N, n)      joint torques (N m), constant on each interval
+    f_contact    (N, n, 2)   contact forces (f_t, f_n) at O_1..O_n at the interval midpoints (N);
                              zero at joints without a modelled contact force
-    gaps         (N+1, 5)    heights y of O_1..O_5 above the ground at the nodes (m)
+    gaps         (N+1, n)    heights y of O_1..O_n above the ground at the nodes (m)
     foot_reaction (N, 2)     ground reaction on the foot (f_t0, f_n0) at the midpoints (N)
     foot_margins (N, 5)      the five products of (5), >= 0 when the foot stays steady
     warm_start   optional dict {t, q}: the stage-1 solution interpolated onto t (2S only)
+    geometry     link lengths "a" (n,), joint "names" (n strings), foot "ankle_height", "a0f",
+                 "a0b" and friction "mu": what the figures need without the model
 """
 
 from __future__ import annotations
@@ -70,6 +73,10 @@ class Solution:
     def status(self) -> str:
         return self.stages[-1].status
 
+    @property
+    def n_links(self) -> int:
+        return int(np.shape(self.q)[1])
+
     def report(self) -> dict[str, Any]:
         """The report.json record (the fields the CLI and table2 promise)."""
         last = self.stages[-1]
@@ -91,6 +98,7 @@ class Solution:
             "N": int(self.t.size - 1),
             "T": float(self.t[-1] - self.t[0]),
             "active_contacts": list(self.active),
+            "n_links": self.n_links,
             "stages": [dataclasses.asdict(s) for s in self.stages],
         }
 
@@ -126,7 +134,7 @@ class Solution:
             objective_terms=meta["objective_terms"],
             stages=[StageStats(**s) for s in meta["stages"]],
             active=tuple(meta["active_contacts"]),
-            geometry={k: np.asarray(v) for k, v in meta["geometry"].items()},
+            geometry={k: tuple(v) if k == "names" else np.asarray(v) for k, v in meta["geometry"].items()},
             warm_start=warm,
             **arrays,
         )

@@ -17,7 +17,7 @@ import numpy as np
 from jaxhumanoid.model import contact as ct
 from jaxhumanoid.model import foot as ft
 from jaxhumanoid.model import kinematics as kin
-from jaxhumanoid.model.params import ContactParams
+from jaxhumanoid.model.params import ContactParams, FootParams, PlanarChain
 from jaxhumanoid.ocp import transcription as tr
 from jaxhumanoid.ocp.scheme import parse_scheme
 from jaxhumanoid.ocp.tasks import get_task
@@ -93,9 +93,10 @@ def interpolate_full(Z_coarse: np.ndarray, T: float, layout_fine: tr.Layout) -> 
     tc, tf = np.linspace(0, T, Nc + 1), np.linspace(0, T, Nf + 1)
     mc, mf = 0.5 * (tc[:-1] + tc[1:]), 0.5 * (tf[:-1] + tf[1:])
     Z = np.zeros((Nf + 1, layout_fine.s))
-    for j in range(10):
+    n_node = layout_fine.stage_slices()["qd"].stop  # q and qd lead every stage
+    for j in range(n_node):
         Z[:, j] = np.interp(tf, tc, Z_coarse[:, j])
-    for j in range(10, layout_fine.s):
+    for j in range(n_node, layout_fine.s):
         Z[:-1, j] = np.interp(mf, mc, Z_coarse[:-1, j])
     return Z
 
@@ -131,16 +132,17 @@ def make_solution(problem: Problem, x, stages, solver: str, warm_start=None) -> 
     qbar, qdbar = 0.5 * (q[:-1] + q[1:]), 0.5 * (qd[:-1] + qd[1:])
     if layout.pseudo_static:
         qdbar = np.diff(q, axis=0) / h
-    idx = np.asarray(layout.active) - 1
+    idx = np.asarray(layout.active, dtype=int) - 1
     if layout.augmented:
         forces = Z[:-1, sl["f"]].reshape(N, -1, 2)
     else:
         forces = jax.vmap(lambda a, b: ct.contact_forces(p.model, p.foot, p.contact, a, b, layout.active))(qbar, qdbar)
-    f_contact = np.zeros((N, 5, 2))
+    f_contact = np.zeros((N, layout.n_links, 2))
     f_contact[:, idx] = np.asarray(forces)
     qdd = np.zeros_like(qbar) if layout.pseudo_static else np.diff(qd, axis=0) / h
     qd_used = np.zeros_like(qbar) if layout.pseudo_static else qdbar
-    f_c0 = np.asarray(jax.vmap(lambda a, b, c, f: ft.foot_reaction(p.model, a, b, c, f))(qbar, qd_used, qdd, jnp.asarray(forces)))
+    reaction = jax.vmap(lambda a, b, c, f: ft.foot_reaction(p.model, a, b, c, f))
+    f_c0 = np.asarray(reaction(qbar, qd_used, qdd, jnp.asarray(forces)))
     margins = np.asarray(jax.vmap(lambda f, u1: ft.foot_constraints(p.foot, p.contact.mu, f, u1))(f_c0, u[:, 0]))
     gaps = np.asarray(jax.vmap(lambda qq: kin.contact_gaps(p.model, p.foot, qq))(q))
     terms = {k: float(v) for k, v in tr.objective_terms(layout, jnp.asarray(Z), p).items()}
@@ -162,6 +164,7 @@ def make_solution(problem: Problem, x, stages, solver: str, warm_start=None) -> 
         active=tuple(layout.active),
         geometry={
             "a": np.asarray(p.model.a),
+            "names": tuple(p.model.names),
             "ankle_height": float(p.foot.ankle_height),
             "a0f": float(p.foot.a0f),
             "a0b": float(p.foot.a0b),
@@ -169,6 +172,25 @@ def make_solution(problem: Problem, x, stages, solver: str, warm_start=None) -> 
         },
         warm_start=warm_start,
     )
+
+
+def _stage_one(task, scheme, solver, final: Problem, N1: int, options, contact_stage1, verbose):
+    """Stage 1 of 2S: the pseudo-static problem (8) on the coarse grid, from the start posture
+    re-seated for the stage-1 contact law, with the IPOPT fallbacks. Returns (stats, Z1)."""
+    law = ContactParams.relaxed() if contact_stage1 is None else contact_stage1
+    q_start1, _ = reseat_for_contact(final.p, final.p.q_start, final.layout.active, law)
+    t0 = time.perf_counter()
+    first = build_problem(task, scheme, N=N1, T=float(final.p.T), pseudo_static=True, contact=law, q_start=q_start1,
+                          weights=np.asarray(final.p.weights), model=final.model, foot=final.p.foot)
+    setup_first = time.perf_counter() - t0
+    fallbacks = STAGE1_FALLBACKS if solver in ("ipopt", "casadi") else ()
+    attempts = [_run_solver(solver, first, first.bounds.x0, options, verbose)]
+    for extra in fallbacks:
+        if attempts[-1].success:
+            break
+        attempts.append(_run_solver(solver, first, first.bounds.x0, {**options, **extra}, verbose))
+    stats = _stage_stats("stage 1 (pseudo-static)", first, attempts, setup_first)
+    return stats, first.full(attempts[-1].x)
 
 
 def solve(
@@ -183,40 +205,35 @@ def solve(
     stage2_options: dict | None = None,
     verbose: bool = False,
     weights=None,
+    model: PlanarChain | None = None,
+    contact: ContactParams | None = None,
+    foot: FootParams | None = None,
+    contact_stage1: ContactParams | None = None,
 ) -> Solution:
     """Solve one task with one strategy. ``options`` apply to every stage; ``stage1_options`` and
-    ``stage2_options`` override them per stage (2S). ``weights``: the eight cost weights of (7)
-    (default ``ocp.tasks.Weights()``), used by both stages."""
+    ``stage2_options`` override them per stage (2S). ``weights``: the cost weights of (7), n + 3 of
+    them (default the task's, ``ocp.tasks.Weights()``), used by both stages. ``model`` (default
+    ``PlanarChain.humanoid()``) and ``foot`` (default ``FootParams.paper()``) apply to both stages;
+    ``contact`` (default nominal) is the law of the dynamic stage, ``contact_stage1`` (default
+    ``ContactParams.relaxed()``) that of the pseudo-static stage 1 of 2S."""
     task = get_task(task)
     scheme = parse_scheme(scheme)
     if solver not in SOLVERS:
         raise ValueError(f"solver: {solver!r} not in {SOLVERS}")
     t0 = time.perf_counter()
-    final = build_problem(task, scheme, N=N, T=T, weights=weights)
+    final = build_problem(task, scheme, N=N, T=T, weights=weights, model=model, contact=contact, foot=foot)
     setup_final = time.perf_counter() - t0
     stages, warm = [], None
     x0 = final.bounds.x0
     if scheme.stages == 2:
-        relaxed = ContactParams.relaxed()
-        q_start1, _ = reseat_for_contact(final.p, final.p.q_start, final.layout.active, relaxed)
-        t0 = time.perf_counter()
-        first = build_problem(task, scheme, N=N1, T=T, pseudo_static=True, contact=relaxed, q_start=q_start1, weights=weights)
-        setup_first = time.perf_counter() - t0
         stage1 = {**STAGE1_DEFAULTS, **(options or {}), **(stage1_options or {})}
-        fallbacks = STAGE1_FALLBACKS if solver in ("ipopt", "casadi") else ()
-        attempts = [_run_solver(solver, first, first.bounds.x0, stage1, verbose)]
-        for extra in fallbacks:
-            if attempts[-1].success:
-                break
-            attempts.append(_run_solver(solver, first, first.bounds.x0, {**stage1, **extra}, verbose))
-        res1 = attempts[-1]
-        stages.append(_stage_stats("stage 1 (pseudo-static)", first, attempts, setup_first))
-        Z1 = first.full(res1.x)
+        stats1, Z1 = _stage_one(task, scheme, solver, final, N1, stage1, contact_stage1, verbose)
+        stages.append(stats1)
         Zf = interpolate_full(Z1, T, final.layout)
-        warm = {"t": np.linspace(0.0, T, N + 1), "q": Zf[:, 0:5]}
+        warm = {"t": np.linspace(0.0, T, N + 1), "q": Zf[:, final.layout.stage_slices()["q"]]}
         x0 = np.clip(np.asarray(tr.free_from_full(final.layout, Zf)), final.bounds.xl, final.bounds.xu)
     stage2 = {**(STAGE2_DEFAULTS if scheme.stages == 2 else {}), **(options or {}), **(stage2_options or {})}
     res = _run_solver(solver, final, x0, stage2, verbose)
-    stages.append(_stage_stats("stage 2 (dynamic)" if scheme.stages == 2 else "single stage", final, [res], setup_final))
+    name = "stage 2 (dynamic)" if scheme.stages == 2 else "single stage"
+    stages.append(_stage_stats(name, final, [res], setup_final))
     return make_solution(final, res.x, stages, solver, warm_start=warm)
-

@@ -17,8 +17,8 @@ from ``Problem.p``) are shared. A shared model source would let a model bug pass
   the same function, safe from overflow for deep penetration);
 * foot reaction of (5) from the COM accelerations a_l = J_l qdd + (d/dq (J_l qd)) qd.
 
-Variable order equals our free-variable order and constraint order equals ours, so every vector,
-Jacobian and Hessian compares entry by entry.
+The chain has n = len(a) links (any n >= 2). Variable order equals our free-variable order and
+constraint order equals ours, so every vector, Jacobian and Hessian compares entry by entry.
 """
 
 from __future__ import annotations
@@ -33,8 +33,6 @@ import numpy as np
 from jaxhumanoid.solvers.ipopt import DEFAULT_OPTIONS, captured_log
 from jaxhumanoid.solvers.result import NLPResult, constraint_violation
 from jaxhumanoid.solvers.status import succeeded
-
-N_Q = 5
 
 
 @dataclasses.dataclass(frozen=True)
@@ -56,6 +54,11 @@ class _Numbers:
     weights: np.ndarray
     T: float
     q_start: np.ndarray
+
+    @property
+    def n(self) -> int:
+        """Number of links."""
+        return int(self.a.size)
 
 
 def _numbers(p) -> _Numbers:
@@ -83,35 +86,37 @@ def _numbers(p) -> _Numbers:
 class _Model:
     """CasADi functions of one configuration (pure symbols in, SX out), Sec. II-A/C/D/E."""
 
-    mass_matrix: ca.Function  # q -> B (5x5)                          (1)
+    mass_matrix: ca.Function  # q -> B (n x n)                        (1)
     coriolis: ca.Function  # q, qd -> C qd                            (1)
     gravity: ca.Function  # q -> G                                    (1)
-    joint_points: ca.Function  # q -> (2x5) positions of O_1..O_5
-    joint_jacobians: ca.Function  # q -> (10x5), rows 2i, 2i+1 = J_v of O_{i+1}
+    joint_points: ca.Function  # q -> (2 x n) positions of O_1..O_n
+    joint_jacobians: ca.Function  # q -> (2n x n), rows 2i, 2i+1 = J_v of O_{i+1}
     momentum_rate: ca.Function  # q, qd, qdd -> sum_l m_l a_COM_l      (5)
 
 
 def _model(nb: _Numbers) -> _Model:
     """Lagrangian mechanics of the chain, derived symbolically (see module docstring)."""
-    q, qd, qdd = ca.SX.sym("q", N_Q), ca.SX.sym("qd", N_Q), ca.SX.sym("qdd", N_Q)
+    n = nb.n
+    q, qd, qdd = ca.SX.sym("q", n), ca.SX.sym("qd", n), ca.SX.sym("qdd", n)
     theta, thetad = ca.cumsum(q), ca.cumsum(qd)
     joint: Any = ca.vertcat(0.0, nb.ankle_height)  # DM, then SX once a joint angle enters
     joints, coms = [], []
-    for l in range(N_Q):
+    for l in range(n):
         e = ca.vertcat(ca.cos(theta[l]), ca.sin(theta[l]))
         joint = joint + float(nb.a[l]) * e
         joints.append(joint)
         coms.append(joint - float(nb.c[l]) * e)
     com_jac = [ca.jacobian(pc, q) for pc in coms]
-    kinetic = 0.5 * sum(float(nb.m[l]) * ca.sumsqr(com_jac[l] @ qd) + float(nb.inertia[l]) * thetad[l] ** 2 for l in range(N_Q))
-    potential = nb.g * sum(float(nb.m[l]) * coms[l][1] for l in range(N_Q))
+    kinetic = 0.5 * sum(float(nb.m[l]) * ca.sumsqr(com_jac[l] @ qd) + float(nb.inertia[l]) * thetad[l] ** 2
+                        for l in range(n))
+    potential = nb.g * sum(float(nb.m[l]) * coms[l][1] for l in range(n))
     B = ca.hessian(kinetic, qd)[0]
     momentum = ca.gradient(kinetic, qd)
     cqd = ca.jacobian(momentum, q) @ qd - ca.gradient(kinetic, q)
     G = ca.gradient(potential, q)
     P = ca.horzcat(*joints)
     JV = ca.vertcat(*[ca.jacobian(pj, q) for pj in joints])
-    rate = sum(float(nb.m[l]) * (com_jac[l] @ qdd + ca.jacobian(com_jac[l] @ qd, q) @ qd) for l in range(N_Q))
+    rate = sum(float(nb.m[l]) * (com_jac[l] @ qdd + ca.jacobian(com_jac[l] @ qd, q) @ qd) for l in range(n))
     return _Model(
         mass_matrix=ca.Function("B", [q], [ca.densify(B)]),
         coriolis=ca.Function("Cqd", [q, qd], [cqd]),
@@ -164,30 +169,32 @@ def _foot_constraints(nb: _Numbers, f_c0, u1):
 
 def equilibrium_torques(nb: _Numbers, model: _Model, q, active) -> np.ndarray:
     """u with G(q) = Q(q, 0, u): the fixed u_0 of the initial static equilibrium."""
-    q = ca.DM(q)
-    forces = _contact_forces(nb, model, q, ca.DM.zeros(N_Q), active)
-    return np.asarray(ca.evalf(model.gravity(q) - _generalized_forces(model, q, ca.DM.zeros(N_Q), forces, active))).ravel()
+    q, rest = ca.DM(q), ca.DM.zeros(nb.n)
+    forces = _contact_forces(nb, model, q, rest, active)
+    return np.asarray(ca.evalf(model.gravity(q) - _generalized_forces(model, q, rest, forces, active))).ravel()
 
 
 def _interval(nb: _Numbers, model: _Model, layout, za, zb, last: bool):
     """Constraints of interval k in our order ((6a), (6b) or (8), A-laws, (5), clearance) and its cost (7)."""
-    h = nb.T / layout.N
-    q0, qd0, u, q1, qd1, u1 = za[0:5], za[5:10], za[10:15], zb[0:5], zb[5:10], zb[10:15]
+    h, n = nb.T / layout.N, nb.n
+    # stage entries: q (n), qd (n), u (n), then the 2|F| contact forces
+    q0, qd0, u, q1, qd1, u1 = za[0:n], za[n : 2 * n], za[2 * n : 3 * n], zb[0:n], zb[n : 2 * n], zb[2 * n : 3 * n]
     qbar, qdbar = 0.5 * (q0 + q1), 0.5 * (qd0 + qd1)
     rate = (q1 - q0) / h if layout.pseudo_static else qdbar
     laws = _contact_forces(nb, model, qbar, rate, layout.active)
     if layout.augmented:
-        forces = [za[15 + 2 * j : 17 + 2 * j] for j in range(len(layout.active))]
+        forces = [za[3 * n + 2 * j : 3 * n + 2 * j + 2] for j in range(len(layout.active))]
     else:
         forces = laws
     parts = [q1 - q0 - h * qdbar]  # (6a)
     Q = _generalized_forces(model, qbar, u, forces, layout.active)
     if layout.pseudo_static:
         parts.append(model.gravity(qbar) - Q)  # (8)
-        f_c0 = _foot_reaction(nb, model, qbar, ca.DM.zeros(N_Q), ca.DM.zeros(N_Q), forces)
+        f_c0 = _foot_reaction(nb, model, qbar, ca.DM.zeros(n), ca.DM.zeros(n), forces)
     else:
         qdd = (qd1 - qd0) / h
-        parts.append(h * (model.mass_matrix(qbar) @ qdd + model.coriolis(qbar, qdbar) + model.gravity(qbar) - Q))  # (6b)
+        residual = model.mass_matrix(qbar) @ qdd + model.coriolis(qbar, qdbar) + model.gravity(qbar) - Q
+        parts.append(h * residual)  # (6b)
         f_c0 = _foot_reaction(nb, model, qbar, qdbar, qdd, forces)
     if layout.augmented:
         parts += [fv - fl for fv, fl in zip(forces, laws)]
@@ -197,7 +204,9 @@ def _interval(nb: _Numbers, model: _Model, layout, za, zb, last: bool):
         parts.append(ca.vertcat(*[heights[i - 1] for i in layout.clear_joints]))
     w = [float(v) for v in nb.weights]
     du = (u1 - u) * (0.0 if last else 1.0)
-    cost = h * (ca.dot(ca.DM(w[:5]), u**2) + w[5] * ca.sumsqr(qd0)) + (w[6] * ca.sumsqr(qd1 - qd0) + w[7] * ca.sumsqr(du)) / h
+    w_u, w_qd, w_dqd, w_du = w[:n], w[n], w[n + 1], w[n + 2]
+    effort = h * (ca.dot(ca.DM(w_u), u**2) + w_qd * ca.sumsqr(qd0))
+    cost = effort + (w_dqd * ca.sumsqr(qd1 - qd0) + w_du * ca.sumsqr(du)) / h
     return ca.vertcat(*parts), cost
 
 
@@ -222,7 +231,7 @@ def build_casadi_nlp(problem) -> CasadiNLP:
     free = layout.free_mask()
     x = ca.SX.sym("x", int(free.sum()))
     fixed = np.zeros(free.shape)
-    fixed[0, 0:5], fixed[0, 10:15] = nb.q_start, u0
+    fixed[0, 0 : nb.n], fixed[0, 2 * nb.n : 3 * nb.n] = nb.q_start, u0
     stages, k_free = [], 0
     for k in range(layout.N + 1):
         entries = []
