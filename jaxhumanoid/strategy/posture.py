@@ -1,0 +1,170 @@
+"""Start postures: the static equilibrium nearest to a guess that keeps the foot steady with margin.
+
+At rest (qd = qdd = 0) every posture q is an equilibrium of (1) with the torques
+u(q) = G(q) - J_F(q)^T f(q), the contact forces f(q) given by the law (3)-(4) at the gaps of q.
+What a posture must satisfy to start a task is the steady foot (5) at those torques, with margin,
+and the clearance of the joints that carry no contact force. ``find_equilibrium`` solves
+
+    min_q  |q - q_guess|^2
+    s.t.   f_n0 >= load_min                                       (5a), a minimum load on the foot
+           (1 - friction_margin) mu f_n0 -/+ f_t0 >= 0            (5b), away from slipping
+           (a0f - cop_margin) f_n0 + u_1 >= 0,
+           (a0b - cop_margin) f_n0 - u_1 >= 0                     (5c), the centre of pressure inside
+           y_i(q) >= clearance for the joints i not in ``active``
+           q_min <= q <= q_max
+
+by SLSQP with exact JAX derivatives (n <= ~10 variables), and reports what the posture carries
+under the nominal law and, re-seated as the two-stage strategy does, under the relaxed law of
+stage 1 (``solve.reseat_for_contact``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from scipy import optimize
+
+from jaxhumanoid.model import contact as ct
+from jaxhumanoid.model import foot as ft
+from jaxhumanoid.model import kinematics as kin
+from jaxhumanoid.model.params import ContactParams, FootParams, PlanarChain
+from jaxhumanoid.ocp import transcription as tr
+from jaxhumanoid.ocp.tasks import Task
+from jaxhumanoid.strategy.solve import reseat_for_contact
+
+
+@dataclasses.dataclass(frozen=True)
+class Margins:
+    """What the foot and the contacts carry at rest in a posture, under one contact law.
+
+    u: (n,) equilibrium torques (N m); forces: (k, 2) (f_t, f_n) at the active joints (N);
+    foot_reaction: (2,) (f_t0, f_n0) (N); foot: (5,) the products of (5); gaps: (n,) heights of
+    O_1..O_n (m); load: f_n0 / (M g); friction: |f_t0| / (mu f_n0); cop: the centre of pressure
+    u_1 / f_n0 (m, toes at -a0f, heel at a0b); ok: every margin of ``find_equilibrium`` holds.
+    """
+
+    u: np.ndarray
+    forces: np.ndarray
+    foot_reaction: np.ndarray
+    foot: np.ndarray
+    gaps: np.ndarray
+    load: float
+    friction: float
+    cop: float
+    ok: bool
+
+
+@dataclasses.dataclass(frozen=True)
+class Equilibrium:
+    """A start posture: q (n,), how far it moved from the guess (rad, max norm), its margins under
+    the nominal law, and the posture re-seated for the relaxed law with its margins there."""
+
+    q: np.ndarray
+    moved: float
+    nominal: Margins
+    q_relaxed: np.ndarray
+    relaxed: Margins
+
+
+@dataclasses.dataclass(frozen=True)
+class MarginSpec:
+    """The margins a start posture must keep (see the module docstring)."""
+
+    load_min: float = 0.1          # f_n0 >= load_min M g
+    friction_margin: float = 0.1   # |f_t0| <= (1 - friction_margin) mu f_n0
+    cop_margin: float = 0.02       # m inside each edge of the sole
+    clearance: float = 0.01        # m above the ground for the joints without contact force
+
+
+def _params(model, foot, contact, q, active) -> tr.OCPParams:
+    n = model.n
+    task = Task("posture", "posture", np.asarray(q, float), np.asarray(q, float), tuple(active))
+    return tr.default_params(task, contact=contact, model=model, foot=foot, weights=np.ones(n + 3))
+
+
+def _rest(p: tr.OCPParams, q, active):
+    """(u, forces, foot reaction, gaps) at rest in posture q."""
+    rest = jnp.zeros_like(q)
+    u = tr.equilibrium_torques(p, q, active)
+    f = ct.contact_forces(p.model, p.foot, p.contact, q, rest, active)
+    f_c0 = ft.foot_reaction(p.model, q, rest, rest, f)
+    return u, f, f_c0, kin.contact_gaps(p.model, p.foot, q)
+
+
+def _constraints(p: tr.OCPParams, active, spec: MarginSpec):
+    """c(q) >= 0 of the module docstring, in newtons (the clearance rows scaled by M g / 1 m)."""
+    free = np.array([i for i in range(p.model.n) if i + 1 not in active], dtype=int)
+    weight = float(np.sum(np.asarray(p.model.m)) * float(p.model.g))
+    foot, mu = p.foot, p.contact.mu
+
+    def c(q):
+        u, _, (f_t0, f_n0), gaps = _rest(p, q, active)
+        rows = [f_n0 - spec.load_min * weight,
+                (1 - spec.friction_margin) * mu * f_n0 - f_t0, (1 - spec.friction_margin) * mu * f_n0 + f_t0,
+                (foot.a0f - spec.cop_margin) * f_n0 + u[0], (foot.a0b - spec.cop_margin) * f_n0 - u[0]]
+        return jnp.concatenate([jnp.stack(rows), weight * (gaps[free] - spec.clearance)])
+
+    return c
+
+
+def margins(model: PlanarChain, q, active, contact: ContactParams | None = None, foot: FootParams | None = None,
+            spec: MarginSpec = MarginSpec()) -> Margins:
+    """What posture q (n,) carries at rest under ``contact`` (default nominal) on ``foot``."""
+    foot = FootParams.paper() if foot is None else foot
+    contact = ContactParams.nominal() if contact is None else contact
+    q = jnp.asarray(q, dtype=float)
+    p = _params(model, foot, contact, q, active)
+    u, f, f_c0, gaps = (np.asarray(a) for a in _rest(p, q, tuple(active)))
+    c = np.asarray(_constraints(p, tuple(active), spec)(q))
+    f_n0 = float(f_c0[1])
+    return Margins(u=u, forces=f, foot_reaction=f_c0,
+                   foot=np.asarray(ft.foot_constraints(p.foot, p.contact.mu, jnp.asarray(f_c0), u[0])),
+                   gaps=gaps, load=f_n0 / float(np.sum(np.asarray(model.m)) * float(model.g)),
+                   friction=abs(float(f_c0[0])) / max(float(contact.mu) * f_n0, 1e-300),
+                   cop=float(u[0]) / f_n0 if f_n0 > 0 else float("nan"), ok=bool(np.all(c >= -1e-6)))
+
+
+def find_equilibrium(model: PlanarChain, q_guess, active, contact: ContactParams | None = None,
+                     foot: FootParams | None = None, q_min=None, q_max=None,
+                     spec: MarginSpec = MarginSpec(), relaxed: ContactParams | None = None) -> Equilibrium:
+    """The static equilibrium nearest to ``q_guess`` (n,) that keeps the foot steady with margin.
+
+    ``active``: the joints (1..n) that may carry contact forces; ``contact`` the law (default
+    nominal); ``q_min``/``q_max`` the joint ranges (default the body's); ``relaxed`` the law of
+    stage 1 (default ``ContactParams.relaxed()``). Raises ValueError naming what fails when no
+    such posture is found near the guess.
+    """
+    foot = FootParams.paper() if foot is None else foot
+    contact = ContactParams.nominal() if contact is None else contact
+    active = tuple(int(i) for i in active)
+    q_guess = np.asarray(q_guess, dtype=float)
+    if q_guess.shape != (model.n,) or not np.all(np.isfinite(q_guess)):
+        raise ValueError(f"q_guess: expected {model.n} finite joint angles (rad), got {q_guess!r}")
+    if not all(1 <= i <= model.n for i in active):
+        raise ValueError(f"active: expected joints in 1..{model.n}, got {active!r}")
+    lo = np.asarray(model.q_min if q_min is None else q_min, dtype=float)
+    hi = np.asarray(model.q_max if q_max is None else q_max, dtype=float)
+    p = _params(model, foot, contact, q_guess, active)
+    c = jax.jit(_constraints(p, active, spec))
+    dc = jax.jit(jax.jacfwd(_constraints(p, active, spec)))
+    scale = 1.0 / max(float(np.sum(np.asarray(model.m)) * float(model.g)), 1.0)
+    res = optimize.minimize(
+        lambda q: float(np.sum((q - q_guess) ** 2)), np.clip(q_guess, lo, hi), jac=lambda q: 2.0 * (q - q_guess),
+        method="SLSQP", bounds=list(zip(lo, hi)),
+        constraints=[{"type": "ineq", "fun": lambda q: scale * np.asarray(c(q)),
+                      "jac": lambda q: scale * np.asarray(dc(q))}],
+        options={"maxiter": 500, "ftol": 1e-14})
+    q = np.asarray(res.x, dtype=float)
+    nominal = margins(model, q, active, contact, foot, spec)
+    if not nominal.ok:
+        raise ValueError(f"find_equilibrium: no static equilibrium keeping the foot steady (5) with margin "
+                         f"was found near q_guess (SLSQP: {res.message}); at the end the foot load is "
+                         f"{nominal.load:.2f} M g, friction use {nominal.friction:.2f}, centre of pressure "
+                         f"{nominal.cop:+.3f} m in [{-float(foot.a0f):.3f}, {float(foot.a0b):.3f}]")
+    relaxed = ContactParams.relaxed() if relaxed is None else relaxed
+    q_rel, _ = reseat_for_contact(p, q, active, relaxed)
+    return Equilibrium(q=q, moved=float(np.max(np.abs(q - q_guess))), nominal=nominal, q_relaxed=q_rel,
+                       relaxed=margins(model, q_rel, active, relaxed, foot, spec))

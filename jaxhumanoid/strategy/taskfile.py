@@ -1,0 +1,149 @@
+"""Task files: a body, a contact law, a task and its solve settings in one TOML file.
+
+    name = "squat"                       # the task's name (required)
+    [body]                               # optional; default the paper's humanoid
+    preset = "humanoid"                  #   start from a preset body, then override fields, or
+    a = [0.473, 0.422, 0.532]            #   give a, c, m, inertia (n each) for a chain of n links
+    c = [...]; m = [...]; inertia = [...]
+    g = 9.81; names = ["knee", "hip", "shoulder"]
+    q_min_deg = [...]; q_max_deg = [...] #   joint ranges (degrees; q_min/q_max in rad also work)
+    scale_m = 1.1                        #   multiply every mass (and inertia) by a factor
+    [foot]     a0f = 0.2; a0b = 0.05; ankle_height = 0.08          # optional
+    [contact]  kappa = 7e4; f0 = 100.0; xhat = 0.05; mu = 0.8      # optional; default nominal
+    [contact_stage1]  ...                                           # optional; default relaxed
+    [task]
+    start_deg = [...]; goal_deg = [...]  # postures (or start/goal in rad), n each
+    active = [1, 3]                      # the joints that may carry contact forces
+    q_min_deg = [...]; q_max_deg = [...] # optional, replace the body's ranges
+    [weights]  w_u = 1e-3; w_qd = 1.0; w_dqd = 2e-2; w_du = 1e-5  # optional
+    [solve]    scheme = "A,F+C,2S"; solver = "ipopt"; N = 60; T = 4.0; N1 = 20    # optional
+    [options]  tol = 1e-8                # solver options, optional
+
+Angles follow the package's convention (relative joint angles, ``jaxhumanoid.model``). Every
+field is checked on loading, and an error names the file, the table and the field.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import pathlib
+import tomllib
+from typing import Any
+
+import numpy as np
+
+from jaxhumanoid.model.params import ContactParams, FootParams, PlanarChain
+from jaxhumanoid.ocp.tasks import Task, Weights
+
+PRESETS = {"humanoid": PlanarChain.humanoid}
+TABLES = {"name": None, "body": {"preset", "a", "c", "m", "inertia", "g", "names", "q_min", "q_max", "q_min_deg",
+                                 "q_max_deg", "scale_m"},
+          "foot": {"a0f", "a0b", "ankle_height"}, "contact": {"kappa", "f0", "xhat", "mu"},
+          "contact_stage1": {"kappa", "f0", "xhat", "mu"},
+          "task": {"start", "goal", "start_deg", "goal_deg", "active", "q_min", "q_max", "q_min_deg", "q_max_deg"},
+          "weights": {"w_u", "w_qd", "w_dqd", "w_du"}, "solve": {"scheme", "solver", "N", "T", "N1"}, "options": None}
+
+
+@dataclasses.dataclass(frozen=True)
+class TaskFile:
+    """What a task file defines: ``solve(**as_solve_kwargs())`` solves it."""
+
+    path: pathlib.Path
+    task: Task
+    model: PlanarChain
+    foot: FootParams | None
+    contact: ContactParams | None
+    contact_stage1: ContactParams | None
+    settings: dict
+    options: dict
+
+    def as_solve_kwargs(self) -> dict[str, Any]:
+        return dict(task=self.task, model=self.model, foot=self.foot, contact=self.contact,
+                    contact_stage1=self.contact_stage1, options=self.options or None, **self.settings)
+
+
+def _angles(where: str, table: dict, key: str, n: int | None):
+    """The angles ``key`` (rad) or ``key_deg`` (degrees) of a table, None when absent."""
+    if key in table and f"{key}_deg" in table:
+        raise ValueError(f"{where}: give {key} (rad) or {key}_deg (degrees), not both")
+    if key not in table and f"{key}_deg" not in table:
+        return None
+    raw = table.get(key, table.get(f"{key}_deg"))
+    arr = np.asarray(raw, dtype=float) * (1.0 if key in table else np.pi / 180.0)
+    if arr.ndim != 1 or (n is not None and arr.size != n):
+        raise ValueError(f"{where}.{key}: expected {n if n else 'one'} angles per joint, got {raw!r}")
+    return arr
+
+
+def _body(where: str, table: dict) -> PlanarChain:
+    preset = table.get("preset")
+    if preset is not None and preset not in PRESETS:
+        raise ValueError(f"{where}.preset: {preset!r} is not one of {sorted(PRESETS)}")
+    base = PRESETS[preset]() if preset else None
+    if base is None and not {"a", "c", "m", "inertia"} <= set(table):
+        raise ValueError(f"{where}: give preset = \"humanoid\" or all of a, c, m, inertia")
+    fields = {k: np.asarray(table[k], dtype=float) for k in ("a", "c", "m", "inertia") if k in table}
+    n = len(fields["a"]) if "a" in fields else (base.n if base else None)
+    for key in ("q_min", "q_max"):
+        value = _angles(where, table, key, n)
+        if value is not None:
+            fields[key] = value
+    if "g" in table:
+        fields["g"] = float(table["g"])
+    if "names" in table:
+        fields["names"] = tuple(str(s) for s in table["names"])
+    chain = dataclasses.replace(base, **fields) if base is not None else PlanarChain(**fields)
+    scale = float(table.get("scale_m", 1.0))
+    if scale != 1.0:
+        chain = dataclasses.replace(chain, m=np.asarray(chain.m) * scale, inertia=np.asarray(chain.inertia) * scale)
+    return chain
+
+
+def _params(table: dict | None, default):
+    """``default()`` with the table's fields replaced; None when the file has no such table."""
+    return None if table is None else dataclasses.replace(default(), **{k: float(v) for k, v in table.items()})
+
+
+def _check_keys(path: pathlib.Path, data: dict) -> None:
+    for key, value in data.items():
+        if key not in TABLES:
+            raise ValueError(f"{path}: unknown table or key {key!r}; allowed: {sorted(TABLES)}")
+        allowed = TABLES[key]
+        if allowed is not None:
+            if not isinstance(value, dict):
+                raise ValueError(f"{path}: [{key}] must be a table")
+            unknown = sorted(set(value) - allowed)
+            if unknown:
+                raise ValueError(f"{path}: [{key}] has unknown keys {unknown}; allowed: {sorted(allowed)}")
+
+
+def load_task_file(path) -> TaskFile:
+    """Read and check a task file (see the module docstring)."""
+    path = pathlib.Path(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except OSError as err:
+        raise ValueError(f"--task-file: cannot read {str(path)!r} ({err.strerror or err})") from err
+    except tomllib.TOMLDecodeError as err:
+        raise ValueError(f"{path}: not valid TOML ({err})") from err
+    _check_keys(path, data)
+    if "name" not in data or "task" not in data:
+        raise ValueError(f"{path}: a task file needs name = \"...\" and a [task] table")
+    try:
+        model = _body(f"{path}: [body]", data["body"]) if "body" in data else PlanarChain.humanoid()
+        foot = _params(data.get("foot"), FootParams.paper)
+        contact = _params(data.get("contact"), ContactParams.nominal)
+        stage1 = _params(data.get("contact_stage1"), ContactParams.relaxed)
+        t = data["task"]
+        where = f"{path}: [task]"
+        start, goal = _angles(where, t, "start", model.n), _angles(where, t, "goal", model.n)
+        if start is None or goal is None or "active" not in t:
+            raise ValueError(f"{where}: needs start (or start_deg), goal (or goal_deg) and active")
+        w = data.get("weights", {})
+        task = Task(str(data["name"]), str(data["name"]), start, goal, tuple(t["active"]),
+                    weights=Weights(**w) if w else Weights(),
+                    q_min=_angles(where, t, "q_min", model.n), q_max=_angles(where, t, "q_max", model.n))
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"{path}: {err}") from err
+    settings = dict(data.get("solve", {}))
+    return TaskFile(path, task, model, foot, contact, stage1, settings, dict(data.get("options", {})))

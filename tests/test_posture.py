@@ -1,0 +1,89 @@
+"""Start postures (find_equilibrium) and task files: real postures of real bodies, and bad input."""
+
+import dataclasses
+import pathlib
+
+import numpy as np
+import pytest
+
+from jaxhumanoid.model.params import FootParams, PlanarChain
+from jaxhumanoid.ocp import tasks
+from jaxhumanoid.strategy.posture import MarginSpec, find_equilibrium, margins
+from jaxhumanoid.strategy.taskfile import load_task_file
+
+EXAMPLES = pathlib.Path(__file__).resolve().parents[1] / "examples"
+DEG = np.pi / 180
+
+
+@pytest.mark.parametrize("key", ["T1", "T3"])
+def test_the_paper_start_postures_are_their_own_equilibria(key):
+    task = tasks.get_task(key)
+    eq = find_equilibrium(PlanarChain.humanoid(), task.start, task.active)
+    assert eq.moved < 1e-9 and eq.nominal.ok and eq.relaxed.ok
+    assert 0.1 <= eq.nominal.load <= 1.0  # the foot carries part of the weight, the contacts the rest
+    assert np.all(eq.nominal.foot >= 0)   # the five products of (5)
+    assert np.max(np.abs(eq.q_relaxed - eq.q)) < 0.05  # re-seated by millimetres, not a new posture
+
+
+def test_a_guess_off_equilibrium_is_moved_to_one_that_keeps_the_foot_steady():
+    model, task = PlanarChain.humanoid(), tasks.get_task("T1")
+    guess = task.start + np.array([0.3, -0.2, 0.1, 0.2, 0.1])
+    spec = MarginSpec()
+    assert not margins(model, guess, task.active, spec=spec).ok  # the check can fail
+    eq = find_equilibrium(model, guess, task.active, spec=spec)
+    assert eq.nominal.ok and eq.moved > 0.01
+    m = eq.nominal
+    assert m.load >= spec.load_min - 1e-6 and m.friction <= 1 - spec.friction_margin + 1e-6
+    foot = FootParams.paper()
+    assert -foot.a0f + spec.cop_margin - 1e-6 <= m.cop <= foot.a0b - spec.cop_margin + 1e-6
+
+
+def test_no_equilibrium_on_a_foot_too_short_is_a_clear_error():
+    tiny = dataclasses.replace(FootParams.paper(), a0f=0.01, a0b=0.01)
+    task = tasks.get_task("T3")
+    with pytest.raises(ValueError, match="find_equilibrium: no static equilibrium"):
+        find_equilibrium(PlanarChain.humanoid(), task.start, task.active, foot=tiny)
+
+
+def test_bad_guess_is_rejected_by_name():
+    with pytest.raises(ValueError, match="q_guess"):
+        find_equilibrium(PlanarChain.humanoid(), np.zeros(3), (1,))
+    with pytest.raises(ValueError, match="active"):
+        find_equilibrium(PlanarChain.humanoid(), tasks.STANDING, (6,))
+
+
+@pytest.mark.parametrize("path", sorted(EXAMPLES.glob("*.toml")), ids=lambda p: p.stem)
+def test_example_task_files_load_and_pose_equilibria(path):
+    tf = load_task_file(path)
+    assert tf.task.n == tf.model.n and tf.settings["N"] >= 10
+    contact = tf.contact
+    if "soft" not in path.stem:  # that one is moved to its equilibrium when it is solved
+        assert margins(tf.model, tf.task.start, tf.task.active, contact=contact, foot=tf.foot).ok, path.name
+
+
+def test_paper_task_files_are_the_built_in_tasks():
+    for key, task in tasks.TASKS.items():
+        tf = load_task_file(EXAMPLES / f"{key}.toml")
+        assert np.array_equal(tf.task.start, task.start) and np.array_equal(tf.task.goal, task.goal)
+        assert tf.task.active == task.active and tf.model.n == 5
+
+
+@pytest.mark.parametrize(
+    "text, field",
+    [
+        ('name = "x"\n[task]\nstart = [1, 0]\ngoal = [1, 0]\nactive = [2]\n[body]\na = [-0.4, 0.5]\n'
+         'c = [0.1, 0.1]\nm = [1, 1]\ninertia = [0.1, 0.1]\n', "PlanarChain.a"),
+        ('name = "x"\n[task]\nstart = [1, 0, 0]\ngoal = [1, 0, 0, 0, 0]\nactive = [2]\n', "start"),
+        ('name = "x"\n[task]\nstart_deg = [1, 0, 0, 0, 0]\ngoal_deg = [1, 0, 0, 0, 0]\nactive = [9]\n', "active"),
+        ('name = "x"\n[tsak]\n', "tsak"),
+        ('name = "x"\n[task]\nstart = [1]\n[weights]\nw_x = 1\n', "w_x"),
+        ('name = "x"\n[body]\npreset = "robot"\n[task]\n', "preset"),
+        ('name = "x\n', "TOML"),
+    ],
+)
+def test_bad_task_files_name_the_field(tmp_path, text, field):
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(ValueError, match=field) as err:
+        load_task_file(path)
+    assert "bad.toml" in str(err.value)
