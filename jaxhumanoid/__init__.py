@@ -1,12 +1,37 @@
-"""jaxhumanoid: differentiable trajectory optimisation of a planar humanoid (or any planar chain) with
-unscheduled contacts.
+"""jaxhumanoid: differentiable trajectory optimisation of planar articulated bodies (the paper's
+humanoid or any planar chain) that make and break contacts with the ground on their own.
 
-Importing the package turns on float64 in JAX (``jax_enable_x64``): every model, transcription
-and solver function works in double precision.
+The public API (``import jaxhumanoid as jh``)::
+
+    jh.PlanarChain(a, c, m, inertia, g=9.81, names=None)   # a body; jh.PlanarChain.humanoid() is Table I
+    jh.ContactParams, jh.FootParams                        # the contact law (3)-(4), the foot of (5)
+    jh.Task(name, start, goal, active, weights=jh.Weights(...)), jh.get_task("T1")
+    jh.find_equilibrium(model, q_guess, active)            # a start posture that keeps the foot steady
+    jh.solve(task, scheme="A,F+C,2S", solver="ipopt", N=100, T=5.0, model=..., contact=..., weights=...)
+    jh.load_task_file("task.toml")                         # body, task and settings from a TOML file
+
+Importing the package turns on float64 in JAX (``jax_enable_x64``).
 """
 
 import jaxhumanoid.runtime  # noqa: F401  (float64 before any array is made)
 from jaxhumanoid.model.params import ContactParams, FootParams, PlanarChain
+from jaxhumanoid.ocp.tasks import Task, Weights, get_task
+from jaxhumanoid.strategy.posture import Equilibrium, find_equilibrium
+from jaxhumanoid.strategy.solution import Solution
+from jaxhumanoid.strategy.solve import solve
+from jaxhumanoid.strategy.taskfile import load_task_file
 
-__all__ = ["ContactParams", "FootParams", "PlanarChain"]
+__all__ = [
+    "ContactParams",
+    "Equilibrium",
+    "FootParams",
+    "PlanarChain",
+    "Solution",
+    "Task",
+    "Weights",
+    "find_equilibrium",
+    "get_task",
+    "load_task_file",
+    "solve",
+]
 __version__ = "0.1.0"

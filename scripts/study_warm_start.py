@@ -22,7 +22,8 @@ from jaxhumanoid.model.params import ContactParams
 from jaxhumanoid.ocp import transcription as tr
 from jaxhumanoid.solvers.ipopt import solve_ipopt
 from jaxhumanoid.strategy.problem import build_problem
-from jaxhumanoid.strategy.solve import STAGE1_DEFAULTS, STAGE1_N, interpolate_full, reseat_for_contact
+from jaxhumanoid.strategy.posture import reseat_for_contact
+from jaxhumanoid.strategy.solve import STAGE1_DEFAULTS, STAGE1_N, interpolate_full
 
 VARIANTS = {
     "mu_init=0.1 (IPOPT default)": ({"mu_init": 1e-1}, None),

@@ -8,7 +8,7 @@ import jaxhumanoid  # noqa: F401  (float64)
 from jaxhumanoid.model.params import ContactParams
 from jaxhumanoid.solvers.ipopt import solve_ipopt
 from jaxhumanoid.strategy.problem import build_problem
-from jaxhumanoid.strategy.solve import reseat_for_contact
+from jaxhumanoid.strategy.posture import reseat_for_contact
 from jaxhumanoid.validation.casadi_backend import build_casadi_nlp, solve_casadi
 from jaxhumanoid.validation.checks import DEFAULT_CASES, cross_validate
 

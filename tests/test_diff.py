@@ -102,7 +102,7 @@ def test_vjp_jvp_consistency(case):
         dp = S.param_direction(prob.p, group, seed=2)
         lhs, rhs = S.tree_vdot(dp_bar, dp), ct @ kkt.jvp(dp)
         assert abs(lhs - rhs) < 1e-9 * max(abs(rhs), 1.0), group
-    dgoal = np.random.default_rng(6).uniform(-1, 1, 5)
+    dgoal = np.random.default_rng(6).uniform(-1, 1, prob.p.model.n)
     assert abs(goal_bar @ dgoal - ct @ kkt.jvp(None, dgoal=dgoal)) < 1e-9 * max(abs(goal_bar @ dgoal), 1.0)
     # the functional API gives the same
     dp_fun = S.solution_vjp(prob, res, ct)

@@ -58,10 +58,10 @@ CHAINS = {
 
 # Bent start and straighter goal postures (relative angles, rad), centre of mass at x = -0.07 m.
 TASKS = {
-    2: tasks.Task("C2", "2-link lean-to-upright", [2.007129, -1.459114], [1.658063, -0.064048], ()),
-    3: tasks.Task("C3", "3-link squat-to-stand", [2.007129, -1.308997, 1.541336], [1.658063, -0.174533, 0.366099], ()),
+    2: tasks.Task("2-link lean-to-upright", [2.007129, -1.459114], [1.658063, -0.064048], ()),
+    3: tasks.Task("3-link squat-to-stand", [2.007129, -1.308997, 1.541336], [1.658063, -0.174533, 0.366099], ()),
     5: tasks.get_task("T1"),
-    7: tasks.Task("C7", "7-link crouch-to-stand", [2.094395, -1.570796, 1.717693, 0.0, -3.637555, -0.349066, 0.0],
+    7: tasks.Task("7-link crouch-to-stand", [2.094395, -1.570796, 1.717693, 0.0, -3.637555, -0.349066, 0.0],
                   [1.623156, -0.05236, 0.192102, 0.0, -3.420962, -0.261799, 0.0], ()),
 }
 
@@ -102,9 +102,9 @@ def test_weights_broadcast_to_the_body():
 
 def test_task_validation_and_ranges():
     with pytest.raises(ValueError, match=r"Task\.active"):
-        tasks.Task("X", "x", [1.0, 0.0, 0.0], [1.0, 0.0, 0.0], (4,))
+        tasks.Task("x", [1.0, 0.0, 0.0], [1.0, 0.0, 0.0], (4,))
     with pytest.raises(ValueError, match=r"Task\.goal"):
-        tasks.Task("X", "x", [1.0, 0.0, 0.0], [1.0, 0.0], ())
+        tasks.Task("x", [1.0, 0.0, 0.0], [1.0, 0.0], ())
     with pytest.raises(ValueError, match="model"):
         build_problem(TASKS[3], "A,F+C,1S", N=5)  # the default body is the 5-link humanoid
     narrow = dataclasses.replace(TASKS[3], q_min=[1.0, -1.5, 0.0], q_max=[2.5, 0.5, 2.0])

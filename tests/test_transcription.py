@@ -14,7 +14,7 @@ from jaxhumanoid.ocp import tasks
 from jaxhumanoid.ocp import transcription as tr
 from jaxhumanoid.ocp.scheme import Scheme, parse_scheme
 from jaxhumanoid.strategy.problem import build_problem
-from jaxhumanoid.strategy.solve import reseat_for_contact
+from jaxhumanoid.strategy.posture import reseat_for_contact
 
 
 @pytest.mark.parametrize(

@@ -31,7 +31,15 @@ from jaxhumanoid.diff.fd import (
     sensitivity_table,
     table_rows,
 )
-from jaxhumanoid.diff.inverse import FREE_WEIGHTS, WEIGHT_NAMES, WeightFit, perturbed_weights, trajectory_scale
+from jaxhumanoid.diff.inverse import (
+    FREE_WEIGHTS,
+    WEIGHT_NAMES,
+    WeightFit,
+    free_weights,
+    perturbed_weights,
+    trajectory_scale,
+    weight_names,
+)
 from jaxhumanoid.diff.kkt import (
     KKTSensitivity,
     KKTValues,
@@ -50,6 +58,8 @@ __all__ = [
     "FREE_WEIGHTS",
     "GROUPS",
     "WEIGHT_NAMES",
+    "weight_names",
+    "free_weights",
     "ActiveSet",
     "KKTPoint",
     "KKTSensitivity",

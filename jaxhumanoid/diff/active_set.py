@@ -100,7 +100,7 @@ def implied_bounds(problem) -> np.ndarray:
     layout = problem.layout
     mask = np.zeros((layout.N + 1, layout.s), dtype=bool)
     if layout.augmented:
-        mask[:, 15:] = True
+        mask[:, layout.stage_slices()["f"]] = True
     return mask[layout.free_mask()]
 
 

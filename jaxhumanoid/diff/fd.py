@@ -27,7 +27,7 @@ FD_TOL = 1e-4  # relative agreement required of every directional derivative
 
 def param_direction(p, group: str, seed: int = 0):
     """A tangent of p that moves one parameter group by relative amounts in [-1, 1] (random,
-    reproducible): weights (8), contact (kappa, f0, xhat, mu), model (a, c, m, inertia),
+    reproducible): weights (n + 3), contact (kappa, f0, xhat, mu), model (a, c, m, inertia),
     horizon (T), start (q_start, absolute radians). Everything else zero."""
     rng = np.random.default_rng(seed)
     dp = jax.tree.map(np.zeros_like, jax.tree.map(lambda a: np.asarray(a, dtype=float), p))
@@ -50,6 +50,7 @@ def param_direction(p, group: str, seed: int = 0):
         leaves = [
             moved.get(f.name, np.zeros_like(np.asarray(getattr(mdl, f.name), dtype=float)))
             for f in dataclasses.fields(mdl)
+            if not f.metadata.get("static")
         ]
         return dataclasses.replace(dp, model=jax.tree.unflatten(jax.tree.structure(mdl), leaves))
     if group == "horizon":
@@ -101,9 +102,9 @@ def mutation_errors(problem, result, kkt, dp, dx_fd) -> dict:
 
 
 def _group_direction(p, group: str, seed: int):
-    """(dp, dgoal) of one group: a ``param_direction`` or, for "goal", a random (5,) goal tangent."""
+    """(dp, dgoal) of one group: a ``param_direction`` or, for "goal", a random (n,) goal tangent."""
     if group == "goal":
-        return None, np.random.default_rng(seed).uniform(-1, 1, 5)
+        return None, np.random.default_rng(seed).uniform(-1, 1, p.model.n)
     return param_direction(p, group, seed=seed), None
 
 

@@ -22,17 +22,27 @@ from jaxhumanoid.diff.resolve import continuation_solve, resolve
 from jaxhumanoid.diff.trees import rel_err, zeros_like_params
 from jaxhumanoid.ocp.nlp import Bounds
 
-WEIGHT_NAMES = ("w_u1", "w_u2", "w_u3", "w_u4", "w_u5", "w_qd", "w_dqd", "w_du")
-FREE_WEIGHTS = (0, 1, 2, 3, 4, 6, 7)  # w_qd fixes the scale: x*(c w) = x*(w) for every c > 0
+def weight_names(n: int) -> tuple[str, ...]:
+    """The names of the n + 3 weights of (7) for a chain of n links."""
+    return (*(f"w_u{j + 1}" for j in range(n)), "w_qd", "w_dqd", "w_du")
 
 
-def perturbed_weights(w, seed: int = 0, lo: float = 2.0, hi: float = 5.0, free=FREE_WEIGHTS) -> np.ndarray:
+def free_weights(n: int) -> tuple[int, ...]:
+    """Every weight but w_qd (index n), which fixes the scale: x*(c w) = x*(w) for every c > 0."""
+    return tuple(j for j in range(n + 3) if j != n)
+
+
+WEIGHT_NAMES = weight_names(5)
+FREE_WEIGHTS = free_weights(5)
+
+
+def perturbed_weights(w, seed: int = 0, lo: float = 2.0, hi: float = 5.0, free=None) -> np.ndarray:
     """``w`` with each free weight multiplied or divided (at random, reproducibly) by a factor
     drawn uniformly from [lo, hi]: the start of an inverse problem."""
     if not 0 < lo <= hi:
         raise ValueError(f"lo, hi: expected 0 < lo <= hi, got {lo!r}, {hi!r}")
     rng = np.random.default_rng(seed)
-    free = np.asarray(free, dtype=np.int64)
+    free = np.asarray(free_weights(np.size(w) - 3) if free is None else free, dtype=np.int64)
     out = np.asarray(w, dtype=float).copy()
     out[free] *= rng.uniform(lo, hi, size=free.size) ** rng.choice([-1.0, 1.0], size=free.size)
     return out
@@ -50,8 +60,8 @@ def trajectory_scale(problem, x) -> np.ndarray:
 class WeightFit:
     """Fit the cost weights so that the optimal trajectory matches ``x_data``.
 
-    Unknowns theta = log w[free] (``free`` defaults to the seven weights other than w_qd, which
-    stays at ``w_init[5]``: only ratios of weights are identifiable). The loss is the scaled
+    Unknowns theta = log w[free] (``free`` defaults to every weight but w_qd, which
+    stays at ``w_init[n]``: only ratios of weights are identifiable). The loss is the scaled
     mismatch ``1/2 ||(x*(w(theta)) - x_data) / s||^2`` (s: ``trajectory_scale`` of x_data).
 
     Every solve follows one branch of local optima: the first is warm-started from ``x_data``
@@ -77,7 +87,7 @@ class WeightFit:
         problem,
         x_data,
         w_init,
-        free=FREE_WEIGHTS,
+        free=None,
         max_rel_step: float = 0.25,
         options: dict | None = None,
         verbose: bool = False,
@@ -87,9 +97,10 @@ class WeightFit:
         if self.x_data.shape != (problem.nlp.n,):
             raise ValueError(f"x_data: expected shape ({problem.nlp.n},), got {self.x_data.shape}")
         self.w_init = np.asarray(w_init, dtype=float)
-        if self.w_init.shape != (8,) or not np.all(self.w_init > 0):
-            raise ValueError(f"w_init: expected 8 positive weights, got {w_init!r}")
-        self.free = np.asarray(free, dtype=np.int64)
+        nw = problem.p.model.n + 3
+        if self.w_init.shape != (nw,) or not np.all(self.w_init > 0):
+            raise ValueError(f"w_init: expected {nw} positive weights, got {w_init!r}")
+        self.free = np.asarray(free_weights(nw - 3) if free is None else free, dtype=np.int64)
         self.scale = trajectory_scale(problem, self.x_data)
         self.options = {"tol": 1e-10, "max_iter": 3000, **(options or {})}
         self.max_rel_step = max_rel_step
@@ -168,7 +179,7 @@ class WeightFit:
         w = self.weights(theta)
         cols = []
         for i in self.free:
-            dw = np.zeros(8)
+            dw = np.zeros(w.size)
             dw[i] = w[i]  # d w_i / d theta_j
             cols.append(kkt.jvp(dataclasses.replace(zeros_like_params(p), weights=dw)) / self.scale)
         self.stats["sensitivities"] += 1
@@ -268,15 +279,16 @@ class WeightFit:
         _, res = self.solve(theta)
         Zd, Zh = self.problem.full(self.x_data), self.problem.full(res.x)
         r = self.residual_of(res.x)
+        names, sl = weight_names(self.w_init.size - 3), self.problem.layout.stage_slices()
         out = {
-            "weight_names": list(WEIGHT_NAMES),
-            "free": [WEIGHT_NAMES[i] for i in self.free],
+            "weight_names": list(names),
+            "free": [names[i] for i in self.free],
             "w_initial": self.w_init.tolist(),
             "w_recovered": self.weights(theta).tolist(),
             "loss_initial": self.history[0]["loss"],
             "loss_final": float(0.5 * r @ r),
-            "max_abs_q_error_rad": float(np.max(np.abs(Zh[:, 0:5] - Zd[:, 0:5]))),
-            "max_abs_u_error_Nm": float(np.max(np.abs(Zh[:-1, 10:15] - Zd[:-1, 10:15]))),
+            "max_abs_q_error_rad": float(np.max(np.abs(Zh[:, sl["q"]] - Zd[:, sl["q"]]))),
+            "max_abs_u_error_Nm": float(np.max(np.abs(Zh[:-1, sl["u"]] - Zd[:-1, sl["u"]]))),
             "rel_err_x": rel_err(res.x, self.x_data),
             **self.stats,
         }

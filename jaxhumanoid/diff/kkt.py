@@ -47,9 +47,9 @@ from jaxhumanoid.ocp.nlp import Bounds
 
 
 def goal_bound_jacobians(problem) -> tuple[np.ndarray, np.ndarray]:
-    """(n, 5) derivatives dxl/dgoal, dxu/dgoal of the NLP bounds w.r.t. the goal posture.
+    """(n_x, n) derivatives dxl/dgoal, dxu/dgoal of the NLP bounds w.r.t. the goal posture (n joints).
 
-    The terminal box is max(Q_MIN, goal - tol) .. min(Q_MAX, goal + tol) (``bounds_full``): a
+    The terminal box is max(q_min, goal - tol) .. min(q_max, goal + tol) (``bounds_full``): a
     bound moves with the goal unless it is clipped by the joint range.
     """
     layout, goal = problem.layout, np.asarray(problem.task.goal, dtype=float)
@@ -57,18 +57,20 @@ def goal_bound_jacobians(problem) -> tuple[np.ndarray, np.ndarray]:
     free = layout.free_mask()
     idx = np.full(free.shape, -1)
     idx[free] = np.arange(free.sum())
-    Dl, Du = np.zeros((problem.nlp.n, 5)), np.zeros((problem.nlp.n, 5))
-    for j in range(5):
+    q_min, q_max = problem.joint_ranges()
+    nq = goal.size
+    Dl, Du = np.zeros((problem.nlp.n, nq)), np.zeros((problem.nlp.n, nq))
+    for j in range(nq):
         i = idx[layout.N, j]
         if i >= 0:
-            Dl[i, j] = float(goal[j] - tol > tasks_mod.Q_MIN[j])
-            Du[i, j] = float(goal[j] + tol < tasks_mod.Q_MAX[j])
+            Dl[i, j] = float(goal[j] - tol > q_min[j])
+            Du[i, j] = float(goal[j] + tol < q_max[j])
     return Dl, Du
 
 
 def bounds_for_goal(problem, goal) -> Bounds:
-    """The problem's bounds with the terminal goal box moved to ``goal`` (5,)."""
-    lo, hi = tr.bounds_full(problem.layout, np.asarray(goal, dtype=float))
+    """The problem's bounds with the terminal goal box moved to ``goal`` (n,)."""
+    lo, hi = tr.bounds_full(problem.layout, np.asarray(goal, dtype=float), *problem.joint_ranges())
     free = problem.layout.free_mask()
     b = problem.bounds
     return Bounds(x0=np.clip(b.x0, lo[free], hi[free]), xl=lo[free], xu=hi[free], gl=b.gl, gu=b.gu)
@@ -202,7 +204,7 @@ class KKTSensitivity:
     # -- forward ------------------------------------------------------------------------------
 
     def _goal_motion(self, dgoal) -> np.ndarray:
-        """dx_B (|B|,) of the active bounds for a goal tangent (5,) (zeros for None)."""
+        """dx_B (|B|,) of the active bounds for a goal tangent (n,) (zeros for None)."""
         if dgoal is None:
             return np.zeros(self.B.size)
         Dl, Du = goal_bound_jacobians(self.problem)
@@ -211,7 +213,7 @@ class KKTSensitivity:
 
     def jvp(self, dp=None, dgoal=None, return_all: bool = False):
         """dx* (n,) for a parameter tangent ``dp`` (pytree like p) and/or goal tangent ``dgoal``
-        (5,); with ``return_all`` also dlam* (m,). Sets ``dropped_residual``."""
+        (n,); with ``return_all`` also dlam* (m,). Sets ``dropped_residual``."""
         n, m = self.nlp.n, self.nlp.m
         if dp is None:
             r_x, r_g = np.zeros(n), np.zeros(m)
@@ -246,7 +248,7 @@ class KKTSensitivity:
 
     def vjp(self, ct_x, goal: bool = False):
         """Cotangent of p (pytree like p) for a cotangent ``ct_x`` (n,) of x*; with ``goal=True``
-        also the (5,) cotangent of the goal posture."""
+        also the (5,) cotangent of the goal posture (n,)."""
         ct_x = np.asarray(ct_x, dtype=float)
         v_x, v_lam = self.adjoint(ct_x)
         dp = jax.tree.map(lambda a: -np.asarray(a), self.fns.pullback(self.x, self.lam, self.p, v_x, v_lam))
@@ -261,7 +263,7 @@ class KKTSensitivity:
     # -- optimal value ------------------------------------------------------------------------
 
     def objective_gradient(self, goal: bool = False):
-        """Envelope theorem: dV/dp = grad_p L(x*, lam*; p) (and dV/dgoal (5,) with ``goal=True``)."""
+        """Envelope theorem: dV/dp = grad_p L(x*, lam*; p) (and dV/dgoal (n,) with ``goal=True``)."""
         dp = jax.tree.map(np.asarray, self.fns.lag_grad_p(self.x, self.lam, self.p))
         if not goal:
             return dp

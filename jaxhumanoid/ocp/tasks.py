@@ -19,7 +19,7 @@ with margin: foot load f_n0 = 150-180 N and centre of pressure u_1/f_n0 inside [
 >= 4 cm to spare. No lying posture can do so under the nominal and the relaxed contact laws at
 once (the relaxed law changes the load shared between the contacts and the foot by hundreds of
 newtons); the two-stage strategy therefore re-seats the start posture by millimetres for stage 1
-(``strategy.solve.reseat_for_contact``) so that the relaxed law carries the same contact forces.
+(``strategy.posture.reseat_for_contact``) so that the relaxed law carries the same contact forces.
 """
 
 from __future__ import annotations
@@ -92,9 +92,9 @@ def _posture(owner: str, name: str, value, n: int | None = None) -> np.ndarray:
 class Task:
     """Start and goal postures of a chain of n links, shape (n,) each; ``active``: the contact
     set F of the F+C scheme (joints in 1..n, Figs. 5-8); ``q_min``/``q_max``: joint ranges (n,)
-    replacing the body's (``PlanarChain.q_min``/``q_max``) when given."""
+    replacing the body's (``PlanarChain.q_min``/``q_max``) when given; ``key``: a short name
+    (default ``name``), e.g. ``T1`` for the paper's tasks."""
 
-    key: str
     name: str
     start: np.ndarray
     goal: np.ndarray
@@ -102,8 +102,14 @@ class Task:
     weights: Weights = Weights()
     q_min: np.ndarray | None = None
     q_max: np.ndarray | None = None
+    key: str = ""
 
     def __post_init__(self):
+        if not isinstance(self.name, str) or not self.name:
+            raise ValueError(f"Task.name: expected a non-empty string, got {self.name!r}")
+        object.__setattr__(self, "key", self.key or self.name)
+        if not isinstance(self.weights, Weights):
+            raise ValueError(f"Task.weights: expected a Weights, got {type(self.weights).__name__}")
         start = _posture("Task", "start", self.start)
         n = start.size
         object.__setattr__(self, "start", start)
@@ -133,10 +139,10 @@ class Task:
 
 
 TASKS = {
-    "T1": Task("T1", "prone-to-stand", PRONE, STANDING, (1, 4, 5)),
-    "T2": Task("T2", "stand-to-prone", STANDING, PRONE, (1, 4, 5)),
-    "T3": Task("T3", "supine-to-stand", SUPINE, STANDING, (2, 5)),
-    "T4": Task("T4", "stand-to-supine", STANDING, SUPINE, (2, 5)),
+    "T1": Task("prone-to-stand", PRONE, STANDING, (1, 4, 5), key="T1"),
+    "T2": Task("stand-to-prone", STANDING, PRONE, (1, 4, 5), key="T2"),
+    "T3": Task("supine-to-stand", SUPINE, STANDING, (2, 5), key="T3"),
+    "T4": Task("stand-to-supine", STANDING, SUPINE, (2, 5), key="T4"),
 }
 _BY_NAME = {t.name: t for t in TASKS.values()}
 

@@ -1,4 +1,4 @@
-"""Command line: ``jaxhumanoid solve | table2 | animate | check`` (also ``python -m jaxhumanoid``)."""
+"""Command line: ``jaxhumanoid solve | table2 | tasks | posture | animate | check`` (also ``python -m jaxhumanoid``)."""
 
 from __future__ import annotations
 
@@ -9,24 +9,40 @@ import sys
 import tempfile
 import time
 
+import numpy as np
+
 from jaxhumanoid.diff import sensitivity_table
+from jaxhumanoid.model.params import PlanarChain
 from jaxhumanoid.ocp.scheme import TABLE2_SCHEMES
+from jaxhumanoid.ocp.tasks import TASKS, get_task
 from jaxhumanoid.outputs import plots, timeline
 from jaxhumanoid.outputs.animation import animate
 from jaxhumanoid.outputs.progress import Progress
 from jaxhumanoid.runtime import enable_compilation_cache
 from jaxhumanoid.solvers import ipopt_capi
+from jaxhumanoid.strategy.posture import find_equilibrium
 from jaxhumanoid.strategy.problem import stage_problem
 from jaxhumanoid.strategy.solution import Solution
 from jaxhumanoid.strategy.solve import solve
+from jaxhumanoid.strategy.taskfile import load_task_file
 from jaxhumanoid.validation import checks
 
 # Table II of the paper: (iterations, seconds) per task and scheme; None = failed.
 PAPER_TABLE2: dict[str, dict[str, tuple[str, str] | None]] = {
     "T1": {"E,F,1S": None, "A,F,1S": ("417", "1239"), "A,F+C,1S": ("287", "488"), "A,F+C,2S": ("272+31", "11+40=51")},
     "T2": {"E,F,1S": None, "A,F,1S": ("242", "735"), "A,F+C,1S": ("193", "382"), "A,F+C,2S": ("93+51", "4+81=85")},
-    "T3": {"E,F,1S": ("331", "691"), "A,F,1S": ("208", "742"), "A,F+C,1S": ("694", "1262"), "A,F+C,2S": ("47+129", "2+210=212")},
-    "T4": {"E,F,1S": ("311", "520"), "A,F,1S": ("340", "1056"), "A,F+C,1S": ("360", "696"), "A,F+C,2S": ("175+27", "8+37=45")},
+    "T3": {
+        "E,F,1S": ("331", "691"),
+        "A,F,1S": ("208", "742"),
+        "A,F+C,1S": ("694", "1262"),
+        "A,F+C,2S": ("47+129", "2+210=212"),
+    },
+    "T4": {
+        "E,F,1S": ("311", "520"),
+        "A,F,1S": ("340", "1056"),
+        "A,F+C,1S": ("360", "696"),
+        "A,F+C,2S": ("175+27", "8+37=45"),
+    },
 }
 
 
@@ -83,11 +99,31 @@ def _save(sol, out: pathlib.Path) -> dict:
     return report
 
 
+SOLVE_DEFAULTS = {"scheme": "A,F+C,2S", "solver": "ipopt", "N": 100, "T": 5.0, "N1": None}
+
+
+def solve_arguments(args) -> dict:
+    """The keyword arguments of ``solve`` from the command line: a ``--task-file`` gives the body,
+    the laws, the task and its settings; flags given on the command line override the file."""
+    base = {"task": args.task or "T1"}
+    settings = dict(SOLVE_DEFAULTS)
+    if args.task_file:
+        if args.task:
+            raise ValueError("--task, --task-file: give one of them")
+        kwargs = load_task_file(args.task_file).as_solve_kwargs()
+        settings.update({k: kwargs.pop(k) for k in list(kwargs) if k in SOLVE_DEFAULTS})
+        base = kwargs
+    settings.update({k: getattr(args, k) for k in SOLVE_DEFAULTS if getattr(args, k) is not None})
+    return {**base, **settings}
+
+
 def cmd_solve(args) -> int:
     out = writable_dir(args.out)
-    options = checked_options(args)
+    kwargs = solve_arguments(args)
+    args.solver = kwargs["solver"]
+    options = {**(kwargs.pop("options", None) or {}), **checked_options(args)}
     t0 = time.perf_counter()
-    sol = solve(args.task, args.scheme, solver=args.solver, N=args.N, T=args.T, options=options, verbose=args.verbose)
+    sol = solve(**kwargs, options=options or None, verbose=args.verbose)
     report = _save(sol, out)
     _write_figures(sol, out, args.animate)
     if not args.quiet:
@@ -141,6 +177,55 @@ def cmd_table2(args) -> int:
     return 0
 
 
+def cmd_tasks(args) -> int:
+    print(f"{'task':<32} {'links':>5}  {'active':<10} source")
+    for key, task in TASKS.items():
+        print(f"{key + ' ' + task.name:<32} {task.n:>5}  {str(list(task.active)):<10} built in")
+    folder = pathlib.Path(args.dir)
+    for path in sorted(folder.glob("*.toml")) if folder.is_dir() else []:
+        tf = load_task_file(path)
+        print(f"{tf.task.name:<32} {tf.model.n:>5}  {str(list(tf.task.active)):<10} {path}")
+    return 0
+
+
+def _posture_row(name: str, eq) -> dict:
+    m = eq.nominal
+    print(
+        f"{name}: q = {np.round(eq.q, 4).tolist()} rad (moved {eq.moved:.2e}), foot load {m.load:.2f} M g, "
+        f"friction use {m.friction:.2f}, centre of pressure {m.cop:+.3f} m, torques {np.round(m.u, 1).tolist()} N m, "
+        f"relaxed law ok: {eq.relaxed.ok}"
+    )
+    return {
+        "q": eq.q.tolist(),
+        "moved": eq.moved,
+        "u": m.u.tolist(),
+        "foot_reaction": m.foot_reaction.tolist(),
+        "load": m.load,
+        "friction": m.friction,
+        "cop": m.cop,
+        "q_relaxed": eq.q_relaxed.tolist(),
+        "relaxed_ok": eq.relaxed.ok,
+    }
+
+
+def cmd_posture(args) -> int:
+    if args.task and args.task_file:
+        raise ValueError("--task, --task-file: give one of them")
+    if args.task_file:
+        tf = load_task_file(args.task_file)
+        task, model, contact, foot = tf.task, tf.model, tf.contact, tf.foot
+    else:
+        task, model, contact, foot = get_task(args.task or "T1"), PlanarChain.humanoid(), None, None
+    q_min, q_max = task.joint_ranges(model)
+    rows = {}
+    for name, q in (("start", task.start), ("goal", task.goal)):
+        eq = find_equilibrium(model, q, task.active, contact=contact, foot=foot, q_min=q_min, q_max=q_max)
+        rows[name] = _posture_row(name, eq)
+    if args.out:
+        pathlib.Path(args.out).write_text(json.dumps(rows, indent=2) + "\n")
+    return 0
+
+
 def cmd_animate(args) -> int:
     src = pathlib.Path(args.dir)
     if not (src / "solution.npz").is_file():
@@ -176,25 +261,50 @@ def cmd_check(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="jaxhumanoid", description="Two-stage trajectory optimisation of a planar humanoid (JAX).")
+    parser = argparse.ArgumentParser(
+        prog="jaxhumanoid", description="Two-stage trajectory optimisation of a planar humanoid (JAX)."
+    )
     parser.add_argument("--no-cache", action="store_true", help="do not use the persistent JAX compilation cache")
     sub = parser.add_subparsers(dest="command", required=True)
 
-    def common(p):
-        p.add_argument("--N", type=int, default=100, help="number of intervals of the (final) grid (default 100)")
-        p.add_argument("--solver", default="ipopt", choices=["ipopt", "ipm", "casadi"])
+    def common(p, grid=True):
+        if grid:
+            p.add_argument("--N", type=int, default=100, help="number of intervals of the (final) grid (default 100)")
+            p.add_argument("--solver", default="ipopt", choices=["ipopt", "ipm", "casadi"])
         p.add_argument("--ipopt-option", action="append", metavar="KEY=VALUE", help="IPOPT option, repeatable")
         p.add_argument("--quiet", action="store_true")
 
     p = sub.add_parser("solve", help="solve one task with one strategy")
-    p.add_argument("--task", default="T1", help="T1..T4 or prone-to-stand, stand-to-prone, supine-to-stand, stand-to-supine")
-    p.add_argument("--scheme", default="A,F+C,2S", help="e.g. A,F+C,2S | A,F+C,1S | A,F,1S | E,F,1S")
-    p.add_argument("--T", type=float, default=5.0, help="horizon in seconds (default 5)")
+    p.add_argument(
+        "--task",
+        default=None,
+        help="T1..T4 or prone-to-stand, stand-to-prone, supine-to-stand, stand-to-supine (default T1)",
+    )
+    p.add_argument(
+        "--task-file",
+        default=None,
+        help="a TOML file with a body, a task and its settings (examples/*.toml); flags given here override the file",
+    )
+    p.add_argument("--scheme", default=None, help="e.g. A,F+C,2S (default) | A,F+C,1S | A,F,1S | E,F,1S")
+    p.add_argument("--T", type=float, default=None, help="horizon in seconds (default 5)")
+    p.add_argument("--N1", type=int, default=None, help="intervals of stage 1 of 2S (default min(30, N))")
+    p.add_argument("--N", type=int, default=None, help="number of intervals of the (final) grid (default 100)")
+    p.add_argument("--solver", default=None, choices=["ipopt", "ipm", "casadi"], help="default ipopt")
     p.add_argument("--out", default="out/solve")
     p.add_argument("--animate", action="store_true", help="also write animation.gif")
     p.add_argument("--verbose", action="store_true", help="print IPOPT's iteration log")
-    common(p)
+    common(p, grid=False)
     p.set_defaults(func=cmd_solve)
+
+    p = sub.add_parser("tasks", help="list the built-in tasks and the task files of a folder")
+    p.add_argument("--dir", default="examples", help="folder of task files (default examples)")
+    p.set_defaults(func=cmd_tasks)
+
+    p = sub.add_parser("posture", help="the static equilibrium nearest to a task's start (and goal) posture")
+    p.add_argument("--task", default=None, help="T1..T4 (default T1)")
+    p.add_argument("--task-file", default=None, help="a TOML task file")
+    p.add_argument("--out", default=None, help="also write the postures and margins as JSON")
+    p.set_defaults(func=cmd_posture)
 
     p = sub.add_parser("table2", help="run the 16 cells of the paper's Table II")
     p.add_argument("--out", default="out/table2")
@@ -211,12 +321,22 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("check", help="cross-validate JAX against CasADi and finite differences")
     p.add_argument("--task", default=None, help="one task (default: all four)")
-    p.add_argument("--scheme", default=None, help="E,F | A,F | A,F+C (default: all three, plus the pseudo-static stage 1; A,F+C with --sensitivities)")
+    p.add_argument(
+        "--scheme",
+        default=None,
+        help="E,F | A,F | A,F+C (default: all three, plus the pseudo-static stage 1; A,F+C with --sensitivities)",
+    )
     p.add_argument("--N", type=int, default=None, help="grid intervals (default 8; 15 with --sensitivities)")
     p.add_argument("--points", type=int, default=2, help="random points per case")
-    p.add_argument("--sensitivities", action="store_true", help="instead: KKT sensitivities of the optimal trajectory against finite differences of re-solves (1S, every parameter group)")
+    p.add_argument(
+        "--sensitivities",
+        action="store_true",
+        help="instead: KKT sensitivities of the optimal trajectory against finite differences of re-solves (1S, every parameter group)",
+    )
     p.add_argument("--eps", type=float, default=1e-5, help="finite-difference step of --sensitivities (relative)")
-    p.add_argument("--out", default=None, help="also write the rows (with --sensitivities: and the full results) as JSON")
+    p.add_argument(
+        "--out", default=None, help="also write the rows (with --sensitivities: and the full results) as JSON"
+    )
     p.set_defaults(func=cmd_check)
     return parser
 

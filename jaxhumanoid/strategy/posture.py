@@ -15,7 +15,7 @@ and the clearance of the joints that carry no contact force. ``find_equilibrium`
 
 by SLSQP with exact JAX derivatives (n <= ~10 variables), and reports what the posture carries
 under the nominal law and, re-seated as the two-stage strategy does, under the relaxed law of
-stage 1 (``solve.reseat_for_contact``).
+stage 1 (``reseat_for_contact``).
 """
 
 from __future__ import annotations
@@ -33,7 +33,6 @@ from jaxhumanoid.model import kinematics as kin
 from jaxhumanoid.model.params import ContactParams, FootParams, PlanarChain
 from jaxhumanoid.ocp import transcription as tr
 from jaxhumanoid.ocp.tasks import Task
-from jaxhumanoid.strategy.solve import reseat_for_contact
 
 
 @dataclasses.dataclass(frozen=True)
@@ -81,7 +80,7 @@ class MarginSpec:
 
 def _params(model, foot, contact, q, active) -> tr.OCPParams:
     n = model.n
-    task = Task("posture", "posture", np.asarray(q, float), np.asarray(q, float), tuple(active))
+    task = Task("posture", np.asarray(q, float), np.asarray(q, float), tuple(active))
     return tr.default_params(task, contact=contact, model=model, foot=foot, weights=np.ones(n + 3))
 
 
@@ -125,6 +124,36 @@ def margins(model: PlanarChain, q, active, contact: ContactParams | None = None,
                    gaps=gaps, load=f_n0 / float(np.sum(np.asarray(model.m)) * float(model.g)),
                    friction=abs(float(f_c0[0])) / max(float(contact.mu) * f_n0, 1e-300),
                    cop=float(u[0]) / f_n0 if f_n0 > 0 else float("nan"), ok=bool(np.all(c >= -1e-6)))
+
+
+def _inverse_normal_force(contact: ContactParams, f):
+    """y with f_n(y) = f for the law (3): y = -(f0/kappa) log2(2^(f/f0) - 1)."""
+    return -(contact.f0 / contact.kappa) * np.log2(np.expm1(f * np.log(2.0) / contact.f0))
+
+
+def reseat_for_contact(p: tr.OCPParams, q, active, new_contact: ContactParams, iters: int = 8):
+    """Shift posture q by the least joint motion so that ``new_contact`` carries the same normal
+    forces at the loaded contacts as ``p.contact`` does at q (hence the same equilibrium torques
+    and foot reaction: the start posture keeps its steady-foot margins under the new law).
+
+    Returns (q_new, max |gap change| in m). Contacts carrying < 1 N are left alone.
+    """
+    q = np.asarray(q, dtype=float)
+    idx = np.asarray(active, dtype=int) - 1
+    gaps = np.asarray(kin.contact_gaps(p.model, p.foot, q))[idx]
+    f_nom = np.asarray(ct.normal_force(p.contact, gaps))
+    loaded = f_nom > 1.0
+    if not np.any(loaded):
+        return q, 0.0
+    target = _inverse_normal_force(new_contact, f_nom[loaded])
+    rows = idx[loaded]
+    jac = jax.jacfwd(lambda qq: kin.contact_gaps(p.model, p.foot, qq))
+    q_new = q.copy()
+    for _ in range(iters):
+        y = np.asarray(kin.contact_gaps(p.model, p.foot, q_new))[rows]
+        J = np.asarray(jac(jnp.asarray(q_new)))[rows]
+        q_new = q_new + np.linalg.lstsq(J, target - y, rcond=None)[0]
+    return q_new, float(np.max(np.abs(target - gaps[loaded])))
 
 
 def find_equilibrium(model: PlanarChain, q_guess, active, contact: ContactParams | None = None,

@@ -8,7 +8,9 @@ paper); the barrier parameter of stage 2 is an IPOPT option (``stage2_options``)
 
 from __future__ import annotations
 
+import dataclasses
 import time
+import warnings
 
 import jax
 import jax.numpy as jnp
@@ -20,10 +22,11 @@ from jaxhumanoid.model import kinematics as kin
 from jaxhumanoid.model.params import ContactParams, FootParams, PlanarChain
 from jaxhumanoid.ocp import transcription as tr
 from jaxhumanoid.ocp.scheme import parse_scheme
-from jaxhumanoid.ocp.tasks import get_task
+from jaxhumanoid.ocp.tasks import Task, Weights, get_task
 from jaxhumanoid.solvers.ipm import solve_ipm
 from jaxhumanoid.solvers.ipopt import solve_ipopt
 from jaxhumanoid.solvers.result import NLPResult
+from jaxhumanoid.strategy.posture import find_equilibrium, margins, reseat_for_contact
 from jaxhumanoid.strategy.problem import Problem, build_problem
 from jaxhumanoid.strategy.solution import Solution, StageStats
 from jaxhumanoid.validation.casadi_backend import solve_casadi
@@ -40,36 +43,6 @@ STAGE2_DEFAULTS = {"mu_init": 1e-3, "bound_push": 1e-6, "bound_frac": 1e-6}
 # scripts/study_iterations.py). Then IPOPT's adaptive barrier update is tried, in order, by the
 # IPOPT-based solvers only; the iterations and times of every run add up.
 STAGE1_FALLBACKS = ({"mu_strategy": "adaptive"},)
-
-
-def _inverse_normal_force(contact: ContactParams, f):
-    """y with f_n(y) = f for the law (3): y = -(f0/kappa) log2(2^(f/f0) - 1)."""
-    return -(contact.f0 / contact.kappa) * np.log2(np.expm1(f * np.log(2.0) / contact.f0))
-
-
-def reseat_for_contact(p: tr.OCPParams, q, active, new_contact: ContactParams, iters: int = 8):
-    """Shift posture q by the least joint motion so that ``new_contact`` carries the same normal
-    forces at the loaded contacts as ``p.contact`` does at q (hence the same equilibrium torques
-    and foot reaction: the start posture keeps its steady-foot margins under the new law).
-
-    Returns (q_new, max |gap change| in m). Contacts carrying < 1 N are left alone.
-    """
-    q = np.asarray(q, dtype=float)
-    idx = np.asarray(active, dtype=int) - 1
-    gaps = np.asarray(kin.contact_gaps(p.model, p.foot, q))[idx]
-    f_nom = np.asarray(ct.normal_force(p.contact, gaps))
-    loaded = f_nom > 1.0
-    if not np.any(loaded):
-        return q, 0.0
-    target = _inverse_normal_force(new_contact, f_nom[loaded])
-    rows = idx[loaded]
-    jac = jax.jacfwd(lambda qq: kin.contact_gaps(p.model, p.foot, qq))
-    q_new = q.copy()
-    for _ in range(iters):
-        y = np.asarray(kin.contact_gaps(p.model, p.foot, q_new))[rows]
-        J = np.asarray(jac(jnp.asarray(q_new)))[rows]
-        q_new = q_new + np.linalg.lstsq(J, target - y, rcond=None)[0]
-    return q_new, float(np.max(np.abs(target - gaps[loaded])))
 
 
 def _run_solver(solver: str, problem: Problem, x0, options, verbose) -> NLPResult:
@@ -193,13 +166,59 @@ def _stage_one(task, scheme, solver, final: Problem, N1: int, options, contact_s
     return stats, first.full(attempts[-1].x)
 
 
+def _check_inputs(N, T, N1, model, contact, foot, contact_stage1, options) -> None:
+    """Every argument of ``solve`` checked before any work, each error naming its field."""
+    for name, value in (("N", N), ("N1", N1)):
+        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 3):
+            raise ValueError(f"{name}: expected an integer number of intervals >= 3, got {value!r}")
+    if isinstance(T, bool) or not isinstance(T, (int, float, np.integer, np.floating)) or not np.isfinite(T) or T <= 0:
+        raise ValueError(f"T: expected a positive horizon in seconds (a number), got {T!r}")
+    for name, value, cls in (("model", model, PlanarChain), ("contact", contact, ContactParams),
+                             ("foot", foot, FootParams), ("contact_stage1", contact_stage1, ContactParams)):
+        if value is not None and not isinstance(value, cls):
+            raise ValueError(f"{name}: expected a {cls.__name__} or None, got {type(value).__name__}")
+    for name, value in options.items():
+        if value is not None and not isinstance(value, dict):
+            raise ValueError(f"{name}: expected a dict of solver options or None, got {type(value).__name__}")
+
+
+def _weights_array(weights, n: int):
+    """``weights`` as the (n + 3,) array of (7): a ``Weights``, an array or None (the task's)."""
+    if weights is None:
+        return None
+    if isinstance(weights, Weights):
+        return weights.as_array(n)
+    w = np.asarray(weights, dtype=float) if not isinstance(weights, str) else np.array([np.nan])
+    if w.shape != (n + 3,) or not np.all(np.isfinite(w)) or np.any(w < 0):
+        raise ValueError(f"weights: expected a Weights or {n + 3} finite weights >= 0 (w_u1..w_u{n}, w_qd, w_dqd, "
+                         f"w_du), got {weights!r}")
+    return w
+
+
+def _seated_task(task: Task, model, contact, foot) -> Task:
+    """The task with its start posture moved to the nearest static equilibrium that keeps the
+    foot steady with margin under the given body and law, when it does not already."""
+    if model is None and contact is None and foot is None:
+        return task
+    body = PlanarChain.humanoid() if model is None else model
+    if body.n != task.n:
+        raise ValueError(f"model: task {task.key} is posed for {task.n} joints, the chain has {body.n} links")
+    if margins(body, task.start, task.active, contact=contact, foot=foot).ok:
+        return task
+    q_min, q_max = task.joint_ranges(body)
+    eq = find_equilibrium(body, task.start, task.active, contact=contact, foot=foot, q_min=q_min, q_max=q_max)
+    warnings.warn(f"task {task.key}: start posture moved by up to {eq.moved:.3f} rad to the nearest static "
+                  "equilibrium that keeps the foot steady under the given body and contact law", stacklevel=3)
+    return dataclasses.replace(task, start=eq.q)
+
+
 def solve(
     task="T1",
     scheme="A,F+C,2S",
     solver: str = "ipopt",
     N: int = 100,
     T: float = 5.0,
-    N1: int = STAGE1_N,
+    N1: int | None = None,
     options: dict | None = None,
     stage1_options: dict | None = None,
     stage2_options: dict | None = None,
@@ -210,16 +229,29 @@ def solve(
     foot: FootParams | None = None,
     contact_stage1: ContactParams | None = None,
 ) -> Solution:
-    """Solve one task with one strategy. ``options`` apply to every stage; ``stage1_options`` and
-    ``stage2_options`` override them per stage (2S). ``weights``: the cost weights of (7), n + 3 of
-    them (default the task's, ``ocp.tasks.Weights()``), used by both stages. ``model`` (default
-    ``PlanarChain.humanoid()``) and ``foot`` (default ``FootParams.paper()``) apply to both stages;
-    ``contact`` (default nominal) is the law of the dynamic stage, ``contact_stage1`` (default
-    ``ContactParams.relaxed()``) that of the pseudo-static stage 1 of 2S."""
+    """Solve one task with one strategy.
+
+    ``task``: a key (``T1``..``T4``), a readable name or a ``Task``. ``N``: intervals of the
+    (final) grid; ``N1``: those of stage 1 of 2S (default min(30, N): never finer than the final
+    grid). ``options`` apply to every stage; ``stage1_options`` and ``stage2_options`` override
+    them per stage (2S). ``weights``: a ``Weights`` or the n + 3 cost weights of (7) (default the
+    task's), used by both stages. ``model`` (default ``PlanarChain.humanoid()``) and ``foot``
+    (default ``FootParams.paper()``) apply to both stages; ``contact`` (default nominal) is the law
+    of the dynamic stage, ``contact_stage1`` (default ``ContactParams.relaxed()``) that of the
+    pseudo-static stage 1. When the body, the foot or the law is given and the task's start
+    posture does not keep the foot steady under them, it is moved to the nearest posture that
+    does (``posture.find_equilibrium``; a warning says so), or a ValueError says none was found.
+    Every argument is checked before any work starts."""
     task = get_task(task)
     scheme = parse_scheme(scheme)
     if solver not in SOLVERS:
         raise ValueError(f"solver: {solver!r} not in {SOLVERS}")
+    _check_inputs(N, T, N1, model, contact, foot, contact_stage1,
+                  {"options": options, "stage1_options": stage1_options, "stage2_options": stage2_options})
+    T = float(T)
+    N1 = min(STAGE1_N, int(N)) if N1 is None else int(N1)
+    weights = _weights_array(weights, task.n if model is None else model.n)
+    task = _seated_task(task, model, contact, foot)
     t0 = time.perf_counter()
     final = build_problem(task, scheme, N=N, T=T, weights=weights, model=model, contact=contact, foot=foot)
     setup_final = time.perf_counter() - t0

@@ -140,7 +140,7 @@ def load_task_file(path) -> TaskFile:
         if start is None or goal is None or "active" not in t:
             raise ValueError(f"{where}: needs start (or start_deg), goal (or goal_deg) and active")
         w = data.get("weights", {})
-        task = Task(str(data["name"]), str(data["name"]), start, goal, tuple(t["active"]),
+        task = Task(str(data["name"]), start, goal, tuple(t["active"]),
                     weights=Weights(**w) if w else Weights(),
                     q_min=_angles(where, t, "q_min", model.n), q_max=_angles(where, t, "q_max", model.n))
     except (TypeError, ValueError) as err:
