@@ -24,11 +24,25 @@ def time_fn(fn, *args, repeats: int = 50) -> dict:
         jax.block_until_ready(fn(*args))
         wall.append((time.perf_counter() - t0) * 1e3)
         cpu.append((time.process_time() - c0) * 1e3)
-    return {"median_ms": float(np.median(wall)), "min_ms": float(np.min(wall)), "cpu_median_ms": float(np.median(cpu)), "compile_ms": compile_ms, "repeats": repeats}
+    return {
+        "median_ms": float(np.median(wall)),
+        "min_ms": float(np.min(wall)),
+        "cpu_median_ms": float(np.median(cpu)),
+        "compile_ms": compile_ms,
+        "repeats": repeats,
+    }
 
 
 def write(results: dict, path: str) -> None:
-    results = {"machine": {"platform": platform.platform(), "processor": platform.processor(), "jax": jax.__version__, "devices": [str(d) for d in jax.devices()]}, **results}
+    results = {
+        "machine": {
+            "platform": platform.platform(),
+            "processor": platform.processor(),
+            "jax": jax.__version__,
+            "devices": [str(d) for d in jax.devices()],
+        },
+        **results,
+    }
     out = pathlib.Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(results, indent=2) + "\n")

@@ -32,7 +32,12 @@ def _time_casadi(fn, args, repeats):
         t0 = time.perf_counter()
         fn(*args)
         samples.append((time.perf_counter() - t0) * 1e3)
-    return {"median_ms": float(np.median(samples)), "min_ms": float(np.min(samples)), "compile_ms": first, "repeats": repeats}
+    return {
+        "median_ms": float(np.median(samples)),
+        "min_ms": float(np.min(samples)),
+        "compile_ms": first,
+        "repeats": repeats,
+    }
 
 
 def evaluations(N: int, repeats: int) -> dict:
@@ -52,7 +57,9 @@ def evaluations(N: int, repeats: int) -> dict:
         "f": ca.Function("f", [cn.x], [cn.f]),
         "g": ca.Function("g", [cn.x], [cn.g]),
         "jacobian": ca.Function("jacobian_g", [cn.x], [ca.jacobian(cn.g, cn.x)]),
-        "hessian": ca.Function("hessian_lagrangian", [cn.x, lam_s, sig], [ca.tril(ca.hessian(sig * cn.f + ca.dot(lam_s, cn.g), cn.x)[0])]),
+        "hessian": ca.Function(
+            "hessian_lagrangian", [cn.x, lam_s, sig], [ca.tril(ca.hessian(sig * cn.f + ca.dot(lam_s, cn.g), cn.x)[0])]
+        ),
     }
     build_s = time.perf_counter() - t0
     cas_res = {k: _time_casadi(fn, (x, lam, 1.0) if k == "hessian" else (x,), repeats) for k, fn in fns.items()}
@@ -90,7 +97,9 @@ def main():
                     "objective": sol.objective,
                 }
             tj, tc = sum(rec["ipopt"]["solve_time_s"]), sum(rec["casadi"]["solve_time_s"])
-            print(f"{task:8s} {'+'.join(map(str, rec['ipopt']['iterations'])):>9s} {tj:7.2f} {'+'.join(map(str, rec['casadi']['iterations'])):>11s} {tc:9.2f} {tj / tc:6.2f}")
+            print(
+                f"{task:8s} {'+'.join(map(str, rec['ipopt']['iterations'])):>9s} {tj:7.2f} {'+'.join(map(str, rec['casadi']['iterations'])):>11s} {tc:9.2f} {tj / tc:6.2f}"
+            )
             solves[task] = rec
     write({"N": args.N, "evaluations": ev, "solves_2S": solves}, args.out)
 

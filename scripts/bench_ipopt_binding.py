@@ -39,9 +39,14 @@ def main():
         ref.append(t_ref / args.iters * 1e3)
         diff.append(float(np.max(np.abs(r.x - x_ref))))
     res = {
-        "task": args.task, "N": 100, "iterations": args.iters, "runs": args.runs,
-        "ms_per_iteration_capi": ours, "ms_per_iteration_cyipopt": ref,
-        "median_capi": float(np.median(ours)), "median_cyipopt": float(np.median(ref)),
+        "task": args.task,
+        "N": 100,
+        "iterations": args.iters,
+        "runs": args.runs,
+        "ms_per_iteration_capi": ours,
+        "ms_per_iteration_cyipopt": ref,
+        "median_capi": float(np.median(ours)),
+        "median_cyipopt": float(np.median(ref)),
         "ratio_median": float(np.median(np.asarray(ours) / np.asarray(ref))),
         "max_abs_x_difference": max(diff),
     }

@@ -1,6 +1,6 @@
 """Benchmark: one evaluation of B, C qd, G, Q and the foot reaction for 100 stages under vmap + jit.
 
-    python scripts/bench_model.py [--stages 100] [--out results/bench_model.json]
+python scripts/bench_model.py [--stages 100] [--out results/bench_model.json]
 """
 
 from __future__ import annotations

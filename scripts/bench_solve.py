@@ -38,7 +38,9 @@ def main():
     ap.add_argument("--out", default="results/bench_solve.json")
     args = ap.parse_args()
     results = {}
-    print(f"{'task':5s} {'its 1+2':>10s} {'stage1 s':>9s} {'stage2 s':>9s} {'total s':>8s} {'ms/it (2)':>10s} {'eval share':>10s} {'linalg share':>12s}")
+    print(
+        f"{'task':5s} {'its 1+2':>10s} {'stage1 s':>9s} {'stage2 s':>9s} {'total s':>8s} {'ms/it (2)':>10s} {'eval share':>10s} {'linalg share':>12s}"
+    )
     for task in args.tasks:
         runs = []
         for _ in range(args.runs):
@@ -66,7 +68,9 @@ def main():
             "runs": args.runs,
             "omp_num_threads": os.environ.get("OMP_NUM_THREADS"),
         }
-        print(f"{task:5s} {its[0]:4d}+{its[1]:<5d} {t1:9.2f} {t2:9.2f} {t1 + t2:8.2f} {per_it:10.1f} {share:10.0%} {linalg:12.0%}")
+        print(
+            f"{task:5s} {its[0]:4d}+{its[1]:<5d} {t1:9.2f} {t2:9.2f} {t1 + t2:8.2f} {per_it:10.1f} {share:10.0%} {linalg:12.0%}"
+        )
     write({"scheme": "A,F+C,2S", "N": 100, "results": results}, args.out)
 
 

@@ -56,8 +56,9 @@ def main():
     ap.add_argument("--tasks", nargs="*", default=["T1", "T2", "T3", "T4"])
     ap.add_argument("--samples", type=int, default=5)
     ap.add_argument("--sigma", type=float, default=0.2)
-    ap.add_argument("--ipopt-option", action="append", metavar="KEY=VALUE",
-                    help="IPOPT option for every stage, repeatable")
+    ap.add_argument(
+        "--ipopt-option", action="append", metavar="KEY=VALUE", help="IPOPT option for every stage, repeatable"
+    )
     ap.add_argument("--out", default="results/study_iterations.json")
     args = ap.parse_args()
     if args.samples < 1:
@@ -71,11 +72,15 @@ def main():
             one = _record(strat.solve(task, "A,F+C,1S", weights=w, options=options))
             two = _record(strat.solve(task, "A,F+C,2S", weights=w, options=options))
             runs.append({"sample": i, "weights": w.tolist(), "1S": one, "2S": two})
-            print(f"{task} sample {i}: 1S {one['iterations']} {one['status']}, "
-                  f"2S {two['iterations']} {two['status']}", flush=True)
+            print(
+                f"{task} sample {i}: 1S {one['iterations']} {one['status']}, 2S {two['iterations']} {two['status']}",
+                flush=True,
+            )
         results[task] = runs
-    print(f"\n{'task':5s} {'1S its':>14s} {'2S dyn its':>14s} {'2S stage-1 its':>15s} {'1S s':>14s} {'2S s':>14s} "
-          f"{'2S < 1S':>8s} {'all ok':>7s}")
+    print(
+        f"\n{'task':5s} {'1S its':>14s} {'2S dyn its':>14s} {'2S stage-1 its':>15s} {'1S s':>14s} {'2S s':>14s} "
+        f"{'2S < 1S':>8s} {'all ok':>7s}"
+    )
     for task, runs in results.items():
         it1 = [r["1S"]["iterations"][0] for r in runs]
         it2 = [r["2S"]["iterations"][1] for r in runs]
@@ -84,10 +89,21 @@ def main():
         it_first = _summary([r["2S"]["iterations"][0] for r in runs])
         t1 = _summary([r["1S"]["solve_time_s"][0] for r in runs], 1)
         t2 = _summary([sum(r["2S"]["solve_time_s"]) for r in runs], 1)
-        print(f"{task:5s} {_summary(it1):>14s} {_summary(it2):>14s} {it_first:>15s} {t1:>14s} {t2:>14s}"
-              f" {fewer:>5d}/{len(runs)} {str(ok):>7s}")
-    write({"schemes": ["A,F+C,1S", "A,F+C,2S"], "sigma": args.sigma, "samples": args.samples, "ipopt_options": options,
-           "omp_num_threads": os.environ.get("OMP_NUM_THREADS"), "results": results}, args.out)
+        print(
+            f"{task:5s} {_summary(it1):>14s} {_summary(it2):>14s} {it_first:>15s} {t1:>14s} {t2:>14s}"
+            f" {fewer:>5d}/{len(runs)} {str(ok):>7s}"
+        )
+    write(
+        {
+            "schemes": ["A,F+C,1S", "A,F+C,2S"],
+            "sigma": args.sigma,
+            "samples": args.samples,
+            "ipopt_options": options,
+            "omp_num_threads": os.environ.get("OMP_NUM_THREADS"),
+            "results": results,
+        },
+        args.out,
+    )
 
 
 if __name__ == "__main__":

@@ -21,8 +21,8 @@ from jaxhumanoid.model import contact as ct
 from jaxhumanoid.model.params import ContactParams
 from jaxhumanoid.ocp import transcription as tr
 from jaxhumanoid.solvers.ipopt import solve_ipopt
-from jaxhumanoid.strategy.problem import build_problem
 from jaxhumanoid.strategy.posture import reseat_for_contact
+from jaxhumanoid.strategy.problem import build_problem
 from jaxhumanoid.strategy.solve import STAGE1_DEFAULTS, STAGE1_N, interpolate_full
 
 VARIANTS = {
@@ -63,18 +63,36 @@ def main():
     final = build_problem(args.task, "A,F+C,2S", N=100)
     h = float(final.p.T) / final.layout.N
     q1, _ = reseat_for_contact(final.p, final.p.q_start, final.layout.active, ContactParams.relaxed())
-    first = build_problem(args.task, "A,F+C,2S", N=STAGE1_N, pseudo_static=True, contact=ContactParams.relaxed(), q_start=q1)
+    first = build_problem(
+        args.task, "A,F+C,2S", N=STAGE1_N, pseudo_static=True, contact=ContactParams.relaxed(), q_start=q1
+    )
     r1 = solve_ipopt(first.nlp, first.p, first.bounds, options=STAGE1_DEFAULTS)
     Zf = interpolate_full(first.full(r1.x), float(final.p.T), final.layout)
-    primal = {None: Zf, "smooth_qd": _smooth_qd(Zf, h), "nominal_forces": _nominal_forces(Zf, final), "both": _nominal_forces(_smooth_qd(Zf, h), final)}
+    primal = {
+        None: Zf,
+        "smooth_qd": _smooth_qd(Zf, h),
+        "nominal_forces": _nominal_forces(Zf, final),
+        "both": _nominal_forces(_smooth_qd(Zf, h), final),
+    }
     results = {"stage1": {"status": r1.status, "iterations": r1.iterations}}
     print(f"{args.task} stage 1: {r1.status}, {r1.iterations} iterations")
     print(f"{'stage-2 variant':45s} {'status':28s} {'its':>5s} {'time s':>7s} {'objective':>10s}")
-    runs = [(name, opts, primal[kind]) for name, (opts, kind) in VARIANTS.items()] + [("1S from the linear guess", {}, None)]
+    runs = [(name, opts, primal[kind]) for name, (opts, kind) in VARIANTS.items()] + [
+        ("1S from the linear guess", {}, None)
+    ]
     for name, opts, Z in runs:
-        x0 = None if Z is None else np.clip(np.asarray(tr.free_from_full(final.layout, Z)), final.bounds.xl, final.bounds.xu)
+        x0 = (
+            None
+            if Z is None
+            else np.clip(np.asarray(tr.free_from_full(final.layout, Z)), final.bounds.xl, final.bounds.xu)
+        )
         r = solve_ipopt(final.nlp, final.p, final.bounds, x0=x0, options={"max_iter": 1500, **opts})
-        results[name] = {"status": r.status, "iterations": r.iterations, "solve_time_s": r.solve_time_s, "objective": r.objective}
+        results[name] = {
+            "status": r.status,
+            "iterations": r.iterations,
+            "solve_time_s": r.solve_time_s,
+            "objective": r.objective,
+        }
         print(f"{name:45s} {r.status:28s} {r.iterations:5d} {r.solve_time_s:7.2f} {r.objective:10.4g}", flush=True)
     write({"task": args.task, "results": results}, args.out or f"results/warm_start_{args.task}.json")
 

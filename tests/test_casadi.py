@@ -7,8 +7,8 @@ import pytest
 import jaxhumanoid  # noqa: F401  (float64)
 from jaxhumanoid.model.params import ContactParams
 from jaxhumanoid.solvers.ipopt import solve_ipopt
-from jaxhumanoid.strategy.problem import build_problem
 from jaxhumanoid.strategy.posture import reseat_for_contact
+from jaxhumanoid.strategy.problem import build_problem
 from jaxhumanoid.validation.casadi_backend import build_casadi_nlp, solve_casadi
 from jaxhumanoid.validation.checks import DEFAULT_CASES, cross_validate
 
@@ -22,7 +22,15 @@ def test_values_and_derivatives_agree(task, scheme, pseudo):
     rows = cross_validate(problem, points=2, x=problem.bounds.x0, seed=3)
     bad = [r for r in rows if not r.ok]
     assert not bad, bad
-    assert {r.quantity for r in rows} >= {"f", "grad f", "g", "jacobian", "hessian (tril)", "jacobian pattern", "hessian pattern"}
+    assert {r.quantity for r in rows} >= {
+        "f",
+        "grad f",
+        "g",
+        "jacobian",
+        "hessian (tril)",
+        "jacobian pattern",
+        "hessian pattern",
+    }
     assert all(r.tol == 1e-10 for r in rows if "pattern" not in r.quantity)
 
 
@@ -53,7 +61,9 @@ def test_casadi_solve_matches_ipopt():
 
 def test_equilibrium_torques_match_fixed_entries():
     problem = build_problem("T3", "A,F+C,1S", N=4)
-    np.testing.assert_allclose(build_casadi_nlp(problem).u0, problem.full(problem.bounds.x0)[0, 10:15], rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(
+        build_casadi_nlp(problem).u0, problem.full(problem.bounds.x0)[0, 10:15], rtol=1e-12, atol=1e-9
+    )
 
 
 def test_rejects_bad_arguments():

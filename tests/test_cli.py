@@ -14,7 +14,20 @@ def test_cli_solve_two_stage_t1(tmp_path):
     out = tmp_path / "T1"
     assert main(["--no-cache", "solve", "--task", "T1", "--out", str(out), "--quiet"]) == 0
     report = json.loads((out / "report.json").read_text())
-    for key in ("task", "scheme", "solver", "success", "status", "iterations", "solve_time_s", "compile_time_s", "objective", "n_variables", "n_constraints", "max_constraint_violation"):
+    for key in (
+        "task",
+        "scheme",
+        "solver",
+        "success",
+        "status",
+        "iterations",
+        "solve_time_s",
+        "compile_time_s",
+        "objective",
+        "n_variables",
+        "n_constraints",
+        "max_constraint_violation",
+    ):
         assert key in report
     assert report["success"] and report["status"] == "Solve_Succeeded"
     assert len(report["iterations"]) == 2 and report["n_variables"] == 2085

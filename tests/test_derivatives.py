@@ -50,8 +50,17 @@ def _stage(z, p):
 
 def _expected(name):
     """Hand-derived patterns of the functions in PATTERN_CASES."""
-    m = np.zeros({"cumsum": (6, 6), "logaddexp2": (6, 12), "fancy": (5, 12), "einsum": (9, 12),
-                  "vmap": (12, 12), "cancel": (2, 4)}[name], dtype=bool)
+    m = np.zeros(
+        {
+            "cumsum": (6, 6),
+            "logaddexp2": (6, 12),
+            "fancy": (5, 12),
+            "einsum": (9, 12),
+            "vmap": (12, 12),
+            "cancel": (2, 4),
+        }[name],
+        dtype=bool,
+    )
     if name == "cumsum":
         m[np.tril_indices(6)] = True
     elif name == "logaddexp2":
@@ -78,9 +87,7 @@ PATTERN_CASES = {
     "fancy": lambda x: x[IDX] ** 2 + jnp.tanh(x[IDX]),
     "einsum": lambda x: jnp.einsum("ij,jk->ik", jnp.sin(x.reshape(3, 4)), A_EINSUM).ravel(),
     "vmap": lambda x: jax.vmap(_stage, in_axes=(0, None))(x.reshape(4, 3), 2.0).ravel(),
-    "cancel": lambda x: jnp.stack(
-        [jnp.cos(jnp.cumsum(x)[2] - jnp.cumsum(x)[1]), jnp.sin(jnp.cumsum(x)[3] - x[0])]
-    ),
+    "cancel": lambda x: jnp.stack([jnp.cos(jnp.cumsum(x)[2] - jnp.cumsum(x)[1]), jnp.sin(jnp.cumsum(x)[3] - x[0])]),
 }
 N_IN = {"cumsum": 6, "logaddexp2": 12, "fancy": 12, "einsum": 12, "vmap": 12, "cancel": 4}
 

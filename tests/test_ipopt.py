@@ -46,9 +46,20 @@ def test_same_iterates_as_cyipopt_on_the_humanoid():
 def test_warm_start_from_multipliers_converges_at_once():
     nlp, bounds, p, _ = tp.hs071()
     cold = solve_ipopt(nlp, p, bounds, options={"tol": 1e-10})
-    warm = solve_ipopt(nlp, p, bounds, x0=cold.x, warm=cold,
-                       options={"tol": 1e-10, "warm_start_init_point": "yes", "mu_init": 1e-9,
-                                "warm_start_bound_push": 1e-12, "warm_start_mult_bound_push": 1e-12})
+    warm = solve_ipopt(
+        nlp,
+        p,
+        bounds,
+        x0=cold.x,
+        warm=cold,
+        options={
+            "tol": 1e-10,
+            "warm_start_init_point": "yes",
+            "mu_init": 1e-9,
+            "warm_start_bound_push": 1e-12,
+            "warm_start_mult_bound_push": 1e-12,
+        },
+    )
     assert warm.success and warm.iterations <= 2 < cold.iterations
     np.testing.assert_allclose(warm.x, cold.x, atol=1e-8)
 
@@ -86,4 +97,5 @@ def _raise_after(calls, exc):
         if calls["n"] > 2:  # the compile-time warm-up call passes, IPOPT's first calls fail
             raise exc("model error")
         return np.zeros(2)
+
     return host

@@ -48,8 +48,12 @@ def test_pattern_form_matches_paper_formula_entrywise():
                 if r > l or s > l:
                     continue
                 total = sum(A[l, i] ** 2 for i in range(max(r, s), l + 1))
-                total += sum(A[l, i] * A[l, j] * np.cos(theta[i] - theta[j])
-                             for i in range(r, l + 1) for j in range(s, l + 1) if i != j)
+                total += sum(
+                    A[l, i] * A[l, j] * np.cos(theta[i] - theta[j])
+                    for i in range(r, l + 1)
+                    for j in range(s, l + 1)
+                    if i != j
+                )
                 B[r, s] += MODEL.m[l] * total + MODEL.inertia[l]
     assert np.max(np.abs(B - np.asarray(dyn.inertia_matrix(MODEL, q)))) < 1e-12
 
@@ -94,7 +98,8 @@ def _midpoint_energies(q0, h, steps):
         qb, qdb = 0.5 * (q0 + q1), 0.5 * (qd0 + qd1)
         r_a = q1 - q0 - h * qdb
         r_b = dyn.inertia_matrix(MODEL, qb) @ (qd1 - qd0) + h * (
-            dyn.coriolis_vector(MODEL, qb, qdb) + dyn.gravity_vector(MODEL, qb))
+            dyn.coriolis_vector(MODEL, qb, qdb) + dyn.gravity_vector(MODEL, qb)
+        )
         return jnp.concatenate([r_a, r_b])
 
     def step(carry, _):
@@ -200,8 +205,12 @@ def _central_fd(fun, x, eps=1e-6):
         ("B", lambda z: dyn.inertia_matrix(MODEL, z[:5]).ravel()),
         ("Cqd", lambda z: dyn.coriolis_vector(MODEL, z[:5], z[5:])),
         ("G", lambda z: dyn.gravity_vector(MODEL, z[:5])),
-        ("Q", lambda z: dyn.generalized_forces(
-            MODEL, z[:5], z[5:], ct.contact_forces(MODEL, FOOT, NOMINAL, z[:5], z[5:], ALL), ALL)),
+        (
+            "Q",
+            lambda z: dyn.generalized_forces(
+                MODEL, z[:5], z[5:], ct.contact_forces(MODEL, FOOT, NOMINAL, z[:5], z[5:], ALL), ALL
+            ),
+        ),
         ("contact", lambda z: ct.contact_forces(MODEL, FOOT, NOMINAL, z[:5], 0.01 * z[5:], ALL).ravel()),
         ("foot", lambda z: ft.foot_reaction(MODEL, z[:5], z[5:], z[5:] ** 2, jnp.zeros((0, 2)))),
     ],
@@ -241,21 +250,34 @@ def test_parameters_are_differentiable_pytrees():
         (lambda: PlanarChain(a=[0.4, 0.4, 0.5, 0.3], c=[0.2] * 5, m=[1.0] * 5, inertia=[0.1] * 5), "PlanarChain.c"),
         (lambda: PlanarChain(a=[0.4], c=[0.2], m=[1.0], inertia=[0.1]), "PlanarChain.a"),
         (lambda: PlanarChain(a=[0.4, -0.4], c=[0.2] * 2, m=[1.0] * 2, inertia=[0.1] * 2), "PlanarChain.a"),
-        (lambda: PlanarChain(a=[0.4] * 5, c=[0.2] * 5, m=[1.0, -1.0, 1.0, 1.0, 1.0], inertia=[0.1] * 5),
-         "PlanarChain.m"),
-        (lambda: PlanarChain(a=[0.4] * 5, c=[0.2] * 5, m=[1.0] * 5, inertia=[0.1, np.nan, 0.1, 0.1, 0.1]),
-         "PlanarChain.inertia"),
+        (
+            lambda: PlanarChain(a=[0.4] * 5, c=[0.2] * 5, m=[1.0, -1.0, 1.0, 1.0, 1.0], inertia=[0.1] * 5),
+            "PlanarChain.m",
+        ),
+        (
+            lambda: PlanarChain(a=[0.4] * 5, c=[0.2] * 5, m=[1.0] * 5, inertia=[0.1, np.nan, 0.1, 0.1, 0.1]),
+            "PlanarChain.inertia",
+        ),
         (lambda: PlanarChain(a=[0.4] * 5, c=[0.5] * 5, m=[1.0] * 5, inertia=[0.1] * 5), "PlanarChain.c"),
         (lambda: PlanarChain(a=[0.4] * 2, c=[0.2] * 2, m=[1.0] * 2, inertia=[0.1] * 2, g=-1.0), "PlanarChain.g"),
-        (lambda: PlanarChain(a=[0.4] * 3, c=[0.2] * 3, m=[1.0] * 3, inertia=[0.1] * 3, names=("a", "b")),
-         "PlanarChain.names"),
-        (lambda: PlanarChain(a=[0.4] * 3, c=[0.2] * 3, m=[1.0] * 3, inertia=[0.1] * 3, names=("a", "b", "a")),
-         "PlanarChain.names"),
-        (lambda: PlanarChain(a=[0.4] * 2, c=[0.2] * 2, m=[1.0] * 2, inertia=[0.1] * 2, q_min=[0.0, 1.0],
-                             q_max=[1.0, 1.0]),
-         "PlanarChain.q_min"),
-        (lambda: PlanarChain(a=[0.4] * 2, c=[0.2] * 2, m=[1.0] * 2, inertia=[0.1] * 2, q_max=[1.0, 1.0, 1.0]),
-         "PlanarChain.q_max"),
+        (
+            lambda: PlanarChain(a=[0.4] * 3, c=[0.2] * 3, m=[1.0] * 3, inertia=[0.1] * 3, names=("a", "b")),
+            "PlanarChain.names",
+        ),
+        (
+            lambda: PlanarChain(a=[0.4] * 3, c=[0.2] * 3, m=[1.0] * 3, inertia=[0.1] * 3, names=("a", "b", "a")),
+            "PlanarChain.names",
+        ),
+        (
+            lambda: PlanarChain(
+                a=[0.4] * 2, c=[0.2] * 2, m=[1.0] * 2, inertia=[0.1] * 2, q_min=[0.0, 1.0], q_max=[1.0, 1.0]
+            ),
+            "PlanarChain.q_min",
+        ),
+        (
+            lambda: PlanarChain(a=[0.4] * 2, c=[0.2] * 2, m=[1.0] * 2, inertia=[0.1] * 2, q_max=[1.0, 1.0, 1.0]),
+            "PlanarChain.q_max",
+        ),
         (lambda: ContactParams(kappa=-1.0, f0=200.0, xhat=0.02, mu=1.0), "ContactParams.kappa"),
         (lambda: ContactParams(kappa=1e5, f0="x", xhat=0.02, mu=1.0), "ContactParams.f0"),
         (lambda: FootParams(a0f=0.2, a0b=0.058, ankle_height=0.0), "FootParams.ankle_height"),

@@ -40,10 +40,20 @@ def _rod_inertia(m, a):
 
 
 CHAINS = {
-    2: PlanarChain(a=[0.9, 0.85], c=[0.45, 0.4], m=[27.0, 44.0], inertia=_rod_inertia([27.0, 44.0], [0.9, 0.85]),
-                   names=("hip", "head")),
-    3: PlanarChain(a=[0.47, 0.42, 0.75], c=[0.21, 0.17, 0.40], m=[6.3, 20.7, 44.0], inertia=[0.086, 0.40, 2.2],
-                   names=("knee", "hip", "head")),
+    2: PlanarChain(
+        a=[0.9, 0.85],
+        c=[0.45, 0.4],
+        m=[27.0, 44.0],
+        inertia=_rod_inertia([27.0, 44.0], [0.9, 0.85]),
+        names=("hip", "head"),
+    ),
+    3: PlanarChain(
+        a=[0.47, 0.42, 0.75],
+        c=[0.21, 0.17, 0.40],
+        m=[6.3, 20.7, 44.0],
+        inertia=[0.086, 0.40, 2.2],
+        names=("knee", "hip", "head"),
+    ),
     5: PlanarChain.humanoid(),
     7: PlanarChain(
         a=[0.473, 0.422, 0.25, 0.282, 0.282, 0.265, 0.09],
@@ -61,8 +71,12 @@ TASKS = {
     2: tasks.Task("2-link lean-to-upright", [2.007129, -1.459114], [1.658063, -0.064048], ()),
     3: tasks.Task("3-link squat-to-stand", [2.007129, -1.308997, 1.541336], [1.658063, -0.174533, 0.366099], ()),
     5: tasks.get_task("T1"),
-    7: tasks.Task("7-link crouch-to-stand", [2.094395, -1.570796, 1.717693, 0.0, -3.637555, -0.349066, 0.0],
-                  [1.623156, -0.05236, 0.192102, 0.0, -3.420962, -0.261799, 0.0], ()),
+    7: tasks.Task(
+        "7-link crouch-to-stand",
+        [2.094395, -1.570796, 1.717693, 0.0, -3.637555, -0.349066, 0.0],
+        [1.623156, -0.05236, 0.192102, 0.0, -3.420962, -0.261799, 0.0],
+        (),
+    ),
 }
 
 
@@ -202,8 +216,9 @@ def test_contact_and_foot_formulas(n):
         ankle_moment = float(model.g * jnp.dot(model.m, x_com))
         assert float(dyn.gravity_vector(model, q)[0]) == pytest.approx(ankle_moment, abs=1e-10)
         # momentum balance with the COM Jacobians
-        pdot = jax.jvp(lambda qq, vv: jnp.einsum("l,ldj,j->d", model.m, kin.com_jacobians(model, qq), vv),
-                       (q, qd), (qd, qdd))[1]
+        pdot = jax.jvp(
+            lambda qq, vv: jnp.einsum("l,ldj,j->d", model.m, kin.com_jacobians(model, qq), vv), (q, qd), (qd, qdd)
+        )[1]
         fc = jnp.asarray(np.random.default_rng(n).normal(size=(2, 2)) * 50)
         expected = pdot + jnp.array([0.0, weight]) - fc.sum(0)
         assert np.allclose(ft.foot_reaction(model, q, qd, qdd, fc), expected, atol=1e-10)
@@ -234,8 +249,9 @@ def test_start_postures_are_equilibria_with_foot_margin(n):
 def test_layout_counts_and_slices(n, scheme):
     sc, N = parse_scheme(scheme), 10
     active = sc.active_set((1, n), n)
-    layout = tr.Layout(N=N, active=active, augmented=sc.augmented, clearance=sc.clearance, pseudo_static=False,
-                       n_links=n)
+    layout = tr.Layout(
+        N=N, active=active, augmented=sc.augmented, clearance=sc.clearance, pseudo_static=False, n_links=n
+    )
     nF = len(active) if sc.augmented else 0
     assert int(layout.free_mask().sum()) == 2 * n * (N + 1) + n * N + 2 * nF * N - 3 * n - 2 * n
     sl = layout.stage_slices()
@@ -251,8 +267,15 @@ DERIVATIVE_CASES = [(2, "A,F,1S", False), (3, "E,F,1S", True), (5, "A,F+C,1S", F
 
 def _problem(n, scheme, pseudo, N, active=None):
     task = TASKS[n] if active is None else dataclasses.replace(TASKS[n], active=active)
-    return build_problem(task, scheme, N=N, T=3.0, pseudo_static=pseudo, model=CHAINS[n],
-                         contact=ContactParams.relaxed() if pseudo else None)
+    return build_problem(
+        task,
+        scheme,
+        N=N,
+        T=3.0,
+        pseudo_static=pseudo,
+        model=CHAINS[n],
+        contact=ContactParams.relaxed() if pseudo else None,
+    )
 
 
 @pytest.mark.parametrize("n,scheme,pseudo", DERIVATIVE_CASES)

@@ -36,7 +36,10 @@ def kernel_name() -> str:
 
         install(prefix=sys.prefix, kernel_name=KERNEL)
     spec = KernelSpecManager().get_kernel_spec(KERNEL)
-    assert spec.argv[0] in ("python", "python3", sys.executable) or pathlib.Path(spec.argv[0]).resolve() == pathlib.Path(sys.executable).resolve(), spec.argv
+    assert (
+        spec.argv[0] in ("python", "python3", sys.executable)
+        or pathlib.Path(spec.argv[0]).resolve() == pathlib.Path(sys.executable).resolve()
+    ), spec.argv
     return KERNEL
 
 

@@ -76,10 +76,25 @@ def make_solution(n=40, horizon=3.0, warm=True, active=(1, 4, 5), task="T1") -> 
         ws_q[:, 1:3] += 0.1 * np.sin(np.pi * ws_t / horizon)[:, None]
         warm_start = {"t": t, "q": plots.interpolate(ws_t, ws_q, t)}
     stats = StageStats("dynamic", "Solve_Succeeded", True, 42, 1.5, 3.0, 12.3, 1e-9, 100, 90)
-    return Solution(task=task, scheme="A F+C 2S", solver="ipopt", t=t, q=q, qd=qd, u=u, f_contact=f_contact,
-                    gaps=gaps, foot_reaction=np.stack([f_t0, f_n0], 1), foot_margins=margins, objective=12.3,
-                    objective_terms={"effort": 10.0, "accel": 2.3}, stages=[stats], active=tuple(active),
-                    geometry=dict(GEOMETRY), warm_start=warm_start)
+    return Solution(
+        task=task,
+        scheme="A F+C 2S",
+        solver="ipopt",
+        t=t,
+        q=q,
+        qd=qd,
+        u=u,
+        f_contact=f_contact,
+        gaps=gaps,
+        foot_reaction=np.stack([f_t0, f_n0], 1),
+        foot_margins=margins,
+        objective=12.3,
+        objective_terms={"effort": 10.0, "accel": 2.3},
+        stages=[stats],
+        active=tuple(active),
+        geometry=dict(GEOMETRY),
+        warm_start=warm_start,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -269,8 +284,10 @@ def test_outputs_do_not_load_pyplot():
     import subprocess
     import sys
 
-    code = ("import sys, jaxhumanoid.outputs.plots, jaxhumanoid.outputs.timeline, jaxhumanoid.outputs.animation; "
-            "assert 'matplotlib.pyplot' not in sys.modules")
+    code = (
+        "import sys, jaxhumanoid.outputs.plots, jaxhumanoid.outputs.timeline, jaxhumanoid.outputs.animation; "
+        "assert 'matplotlib.pyplot' not in sys.modules"
+    )
     subprocess.run([sys.executable, "-c", code], check=True)
 
 

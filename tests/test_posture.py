@@ -21,7 +21,7 @@ def test_the_paper_start_postures_are_their_own_equilibria(key):
     eq = find_equilibrium(PlanarChain.humanoid(), task.start, task.active)
     assert eq.moved < 1e-9 and eq.nominal.ok and eq.relaxed.ok
     assert 0.1 <= eq.nominal.load <= 1.0  # the foot carries part of the weight, the contacts the rest
-    assert np.all(eq.nominal.foot >= 0)   # the five products of (5)
+    assert np.all(eq.nominal.foot >= 0)  # the five products of (5)
     assert np.max(np.abs(eq.q_relaxed - eq.q)) < 0.05  # re-seated by millimetres, not a new posture
 
 
@@ -71,8 +71,11 @@ def test_paper_task_files_are_the_built_in_tasks():
 @pytest.mark.parametrize(
     "text, field",
     [
-        ('name = "x"\n[task]\nstart = [1, 0]\ngoal = [1, 0]\nactive = [2]\n[body]\na = [-0.4, 0.5]\n'
-         'c = [0.1, 0.1]\nm = [1, 1]\ninertia = [0.1, 0.1]\n', "PlanarChain.a"),
+        (
+            'name = "x"\n[task]\nstart = [1, 0]\ngoal = [1, 0]\nactive = [2]\n[body]\na = [-0.4, 0.5]\n'
+            "c = [0.1, 0.1]\nm = [1, 1]\ninertia = [0.1, 0.1]\n",
+            "PlanarChain.a",
+        ),
         ('name = "x"\n[task]\nstart = [1, 0, 0]\ngoal = [1, 0, 0, 0, 0]\nactive = [2]\n', "start"),
         ('name = "x"\n[task]\nstart_deg = [1, 0, 0, 0, 0]\ngoal_deg = [1, 0, 0, 0, 0]\nactive = [9]\n', "active"),
         ('name = "x"\n[tsak]\n', "tsak"),

@@ -21,10 +21,19 @@ def test_failed_stage_one_retries_with_the_fallback_and_counts_every_run(monkeyp
         calls.append((problem.layout.N, dict(options)))
         fail = problem.layout.pseudo_static and len(calls) == 1
         n, m = problem.nlp.n, problem.nlp.m
-        return NLPResult(x=np.asarray(x0, float), lam_g=np.zeros(m), z_l=np.zeros(n), z_u=np.zeros(n),
-                         status="Infeasible_Problem_Detected" if fail else "Solve_Succeeded", success=not fail,
-                         iterations=100 + len(calls), solve_time_s=1.0, compile_time_s=0.5, objective=1.0,
-                         max_constraint_violation=0.0)
+        return NLPResult(
+            x=np.asarray(x0, float),
+            lam_g=np.zeros(m),
+            z_l=np.zeros(n),
+            z_u=np.zeros(n),
+            status="Infeasible_Problem_Detected" if fail else "Solve_Succeeded",
+            success=not fail,
+            iterations=100 + len(calls),
+            solve_time_s=1.0,
+            compile_time_s=0.5,
+            objective=1.0,
+            max_constraint_violation=0.0,
+        )
 
     monkeypatch.setattr(strat, "_run_solver", fake_run)
     sol = strat.solve("T1", "A,F+C,2S", N=10, N1=5)

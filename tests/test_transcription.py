@@ -13,14 +13,19 @@ from jaxhumanoid.model.params import ContactParams
 from jaxhumanoid.ocp import tasks
 from jaxhumanoid.ocp import transcription as tr
 from jaxhumanoid.ocp.scheme import Scheme, parse_scheme
-from jaxhumanoid.strategy.problem import build_problem
 from jaxhumanoid.strategy.posture import reseat_for_contact
+from jaxhumanoid.strategy.problem import build_problem
 
 
 @pytest.mark.parametrize(
     "task,scheme,expected",
-    [("T1", "E,F,1S", 1485), ("T1", "A,F,1S", 2485), ("T1", "A,F+C,1S", 2085), ("T3", "A,F+C,1S", 1885),
-     ("T4", "E,F+C,1S", 1485)],
+    [
+        ("T1", "E,F,1S", 1485),
+        ("T1", "A,F,1S", 2485),
+        ("T1", "A,F+C,1S", 2085),
+        ("T3", "A,F+C,1S", 1885),
+        ("T4", "E,F+C,1S", 1485),
+    ],
 )
 def test_variable_count_matches_paper_formula(task, scheme, expected):
     pr = build_problem(task, scheme, N=100)

@@ -1,9 +1,9 @@
 """Sparse derivatives from JAX: sparsity patterns, graph colouring, compressed evaluation.
 
-    rows, cols = jacobian_sparsity(g, n, p)              # pattern of dg/dx
-    jac_values = sparse_jacobian(g, rows, cols, n)       # jac_values(x, p) -> (nnz,)
-    hr, hc = hessian_sparsity(lagrangian, n, lam, 1.0, p)  # random lam: exact union pattern
-    hess_values = sparse_hessian(lagrangian, hr, hc, n)  # hess_values(x, lam, sigma, p)
+rows, cols = jacobian_sparsity(g, n, p)              # pattern of dg/dx
+jac_values = sparse_jacobian(g, rows, cols, n)       # jac_values(x, p) -> (nnz,)
+hr, hc = hessian_sparsity(lagrangian, n, lam, 1.0, p)  # random lam: exact union pattern
+hess_values = sparse_hessian(lagrangian, hr, hc, n)  # hess_values(x, lam, sigma, p)
 """
 
 from jaxhumanoid.derivatives.colouring import (

@@ -32,9 +32,7 @@ def _check_x(x, n: int):
         raise ValueError(f"x: expected shape ({n},), got {jnp.shape(x)}")
 
 
-def sparse_jacobian(
-    fun: Callable[..., Any], rows, cols, n: int, colouring=None
-) -> Callable[..., jax.Array]:
+def sparse_jacobian(fun: Callable[..., Any], rows, cols, n: int, colouring=None) -> Callable[..., jax.Array]:
     """Values of d fun(x, *args) / dx at the pattern (rows, cols), fun: (n,) -> (m,).
 
     ``colouring`` is a column colouring (n,) valid for the pattern (``colour_columns`` if None).
@@ -52,6 +50,7 @@ def sparse_jacobian(
 
     def jac_values(x, *args):
         _check_x(x, n)
+
         def f(z):
             return fun(z, *args)
 
@@ -65,9 +64,7 @@ def sparse_jacobian(
     return jac_values
 
 
-def sparse_hessian(
-    fun: Callable[..., Any], rows, cols, n: int, colouring=None
-) -> Callable[..., jax.Array]:
+def sparse_hessian(fun: Callable[..., Any], rows, cols, n: int, colouring=None) -> Callable[..., jax.Array]:
     """Values of d^2 fun(x, *args) / dx^2 at the lower-triangle pattern (rows >= cols).
 
     fun: (n,) -> () scalar. ``colouring`` is a star colouring (n,) of the pattern
@@ -84,6 +81,7 @@ def sparse_hessian(
 
     def hess_values(x, *args):
         _check_x(x, n)
+
         def f(z):
             return fun(z, *args)
 
@@ -134,4 +132,3 @@ def stage_hessian(
     ``args_axes`` as in ``stage_jacobian``.
     """
     return _stage_map(sparse_hessian(stage_fun, local_rows, local_cols, nz, colouring), nz, args_axes)
-

@@ -75,7 +75,9 @@ def local_derivatives(con_r, M: np.ndarray, cost, p_example, seed: int = 0) -> L
 
     # Hessian of lam.c in r (pattern union over two multiplier draws), mapped to w; plus the cost.
     rng = np.random.default_rng(seed)
-    hr, hc = sparsity.hessian_sparsity(lag_r, nr, seed=seed, arg_sets=[(jnp.asarray(rng.normal(size=n_con)), p_example) for _ in range(2)])
+    hr, hc = sparsity.hessian_sparsity(
+        lag_r, nr, seed=seed, arg_sets=[(jnp.asarray(rng.normal(size=n_con)), p_example) for _ in range(2)]
+    )
     cr, cc = sparsity.hessian_sparsity(cost, nw, seed=seed, arg_sets=[(p_example, last) for last in (False, True)])
 
     entries = defaultdict(list)
@@ -91,7 +93,9 @@ def local_derivatives(con_r, M: np.ndarray, cost, p_example, seed: int = 0) -> L
     hcol = colouring.star_colouring(hr, hc, nr)
     ccol = colouring.star_colouring(cr, cc, nw)
     hess_r = compressed.stage_hessian(lag_r, hr, hc, nr, colouring=hcol, args_axes=(0, None))
-    hess_cost = compressed.stage_hessian(lambda w, sigma, last, p: sigma * cost(w, p, last), cr, cc, nw, colouring=ccol, args_axes=(None, 0, None))
+    hess_cost = compressed.stage_hessian(
+        lambda w, sigma, last, p: sigma * cost(w, p, last), cr, cc, nw, colouring=ccol, args_axes=(None, 0, None)
+    )
 
     j_src_j, j_coef_j = jnp.asarray(j_src), jnp.asarray(j_coef)
     h_src_j, h_coef_j = jnp.asarray(h_src), jnp.asarray(h_coef)
@@ -105,6 +109,12 @@ def local_derivatives(con_r, M: np.ndarray, cost, p_example, seed: int = 0) -> L
         return jnp.sum(vals[:, h_src_j] * h_coef_j, axis=-1)
 
     return LocalDerivatives(
-        jw_rows, jw_cols, hw_rows, hw_cols, jacobian, hessian,
-        colouring.num_colours(jcol), colouring.num_colours(hcol) + colouring.num_colours(ccol),
+        jw_rows,
+        jw_cols,
+        hw_rows,
+        hw_cols,
+        jacobian,
+        hessian,
+        colouring.num_colours(jcol),
+        colouring.num_colours(hcol) + colouring.num_colours(ccol),
     )

@@ -96,8 +96,14 @@ def jacobian_sparsity(
     them, tuple k sampled with seed ``seed + k``.
     """
     mask = _union_nonzeros(
-        fun, n, _arg_sets(args, arg_sets), lambda k: sample_points(n, num_points, center, scale, seed + k, points),
-        lambda shape: len(shape) == 1, "a function returning a 1-D array", jax.jacfwd, "the Jacobian",
+        fun,
+        n,
+        _arg_sets(args, arg_sets),
+        lambda k: sample_points(n, num_points, center, scale, seed + k, points),
+        lambda shape: len(shape) == 1,
+        "a function returning a 1-D array",
+        jax.jacfwd,
+        "the Jacobian",
     )
     rows, cols = np.nonzero(mask)
     return rows.astype(np.int64), cols.astype(np.int64)
@@ -121,8 +127,14 @@ def hessian_sparsity(
     ``arg_sets`` as in ``jacobian_sparsity`` (e.g. several random multiplier draws).
     """
     mask = _union_nonzeros(
-        fun, n, _arg_sets(args, arg_sets), lambda k: sample_points(n, num_points, center, scale, seed + k, points),
-        lambda shape: shape == (), "a scalar-valued function", jax.hessian, "the Hessian",
+        fun,
+        n,
+        _arg_sets(args, arg_sets),
+        lambda k: sample_points(n, num_points, center, scale, seed + k, points),
+        lambda shape: shape == (),
+        "a scalar-valued function",
+        jax.hessian,
+        "the Hessian",
     )
     rows, cols = np.nonzero(np.tril(mask | mask.T))
     return rows.astype(np.int64), cols.astype(np.int64)

@@ -22,6 +22,7 @@ from jaxhumanoid.diff.resolve import continuation_solve, resolve
 from jaxhumanoid.diff.trees import rel_err, zeros_like_params
 from jaxhumanoid.ocp.nlp import Bounds
 
+
 def weight_names(n: int) -> tuple[str, ...]:
     """The names of the n + 3 weights of (7) for a chain of n links."""
     return (*(f"w_u{j + 1}" for j in range(n)), "w_qd", "w_dqd", "w_du")

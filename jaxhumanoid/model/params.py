@@ -107,8 +107,9 @@ class PlanarChain:
             value = default if getattr(self, name) is None else getattr(self, name)
             object.__setattr__(self, name, _check("PlanarChain", name, value, (n,), positive=False))
         if _is_concrete(self.q_min) and _is_concrete(self.q_max) and not np.all(self.q_min < self.q_max):
-            raise ValueError(f"PlanarChain.q_min: each q_min_i must be below q_max_i, got q_min={self.q_min}, "
-                             f"q_max={self.q_max}")
+            raise ValueError(
+                f"PlanarChain.q_min: each q_min_i must be below q_max_i, got q_min={self.q_min}, q_max={self.q_max}"
+            )
 
     @classmethod
     def humanoid(cls) -> PlanarChain:

@@ -37,9 +37,9 @@ class JittedNLP(NamedTuple):
     solver asks for at the same point (IPOPT: f and g at every trial point, grad f and the
     Jacobian at every accepted one) into one dispatch each."""
 
-    fg: Callable[[Any, Any], Any]                   # (x, p) -> (f, g)
-    grad_jac: Callable[[Any, Any], Any]             # (x, p) -> (grad, jac_values)
-    hess: Callable[[Any, Any, Any, Any], Any]       # (x, lam, sigma, p) -> hess_values
+    fg: Callable[[Any, Any], Any]  # (x, p) -> (f, g)
+    grad_jac: Callable[[Any, Any], Any]  # (x, p) -> (grad, jac_values)
+    hess: Callable[[Any, Any, Any, Any], Any]  # (x, lam, sigma, p) -> hess_values
     f: Callable[[Any, Any], Any]
     g: Callable[[Any, Any], Any]
     grad: Callable[[Any, Any], Any]
@@ -105,6 +105,10 @@ class Bounds:
             if arr.shape != (size,):
                 raise ValueError(f"Bounds.{name}: expected shape ({size},), got {arr.shape}")
         if np.any(self.xl > self.xu):
-            raise ValueError(f"Bounds.xl/xu: lower bound above upper bound at indices {np.nonzero(self.xl > self.xu)[0][:10]}")
+            raise ValueError(
+                f"Bounds.xl/xu: lower bound above upper bound at indices {np.nonzero(self.xl > self.xu)[0][:10]}"
+            )
         if np.any(self.gl > self.gu):
-            raise ValueError(f"Bounds.gl/gu: lower bound above upper bound at indices {np.nonzero(self.gl > self.gu)[0][:10]}")
+            raise ValueError(
+                f"Bounds.gl/gu: lower bound above upper bound at indices {np.nonzero(self.gl > self.gu)[0][:10]}"
+            )

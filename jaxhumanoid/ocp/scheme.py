@@ -52,8 +52,10 @@ def parse_scheme(text) -> Scheme:
     if isinstance(text, Scheme):
         return text
     parts = [p for p in str(text).upper().replace(",", " ").replace("-", " ").replace("/", " ").split() if p]
-    err = (f"scheme: cannot parse {text!r}; expected forces in {_FORCES}, contacts in {_CONTACTS}, "
-           f"stages in {_STAGES}, e.g. 'A,F+C,2S'")
+    err = (
+        f"scheme: cannot parse {text!r}; expected forces in {_FORCES}, contacts in {_CONTACTS}, "
+        f"stages in {_STAGES}, e.g. 'A,F+C,2S'"
+    )
     if len(parts) != 3 or parts[0] not in _FORCES or parts[1] not in _CONTACTS or parts[2] not in _STAGES:
         raise ValueError(err)
     return Scheme(parts[0], parts[1], int(parts[2][0]))

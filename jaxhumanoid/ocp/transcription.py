@@ -265,8 +265,9 @@ def default_params(
         raise ValueError(f"model: task {task.key} is posed for {task.n} joints, the chain has {n} links")
     w = task.weights.as_array(n) if weights is None else np.asarray(weights, dtype=float)
     if w.shape != (n + 3,) or not np.all(np.isfinite(w)) or np.any(w < 0):
-        raise ValueError(f"weights: expected {n + 3} finite weights >= 0 (w_u1..w_u{n}, w_qd, w_dqd, w_du), "
-                         f"got {weights!r}")
+        raise ValueError(
+            f"weights: expected {n + 3} finite weights >= 0 (w_u1..w_u{n}, w_qd, w_dqd, w_du), got {weights!r}"
+        )
     return OCPParams(
         model=model,
         foot=FootParams.paper() if foot is None else foot,

@@ -50,8 +50,9 @@ def _writer(path: pathlib.Path, fps: float):
         return PillowWriter(fps=fps)  # type: ignore[arg-type]  # a float rate works; the stubs say int
     if suffix == ".mp4":
         if not writers.is_available("ffmpeg"):
-            raise RuntimeError(f"cannot write {path}: MP4 needs ffmpeg on PATH, which was not found; "
-                               "install ffmpeg or ask for a .gif")
+            raise RuntimeError(
+                f"cannot write {path}: MP4 needs ffmpeg on PATH, which was not found; install ffmpeg or ask for a .gif"
+            )
         return FFMpegWriter(fps=fps)  # type: ignore[arg-type]
     raise ValueError(f"path: expected a file name ending in .gif or .mp4, got {str(path)!r}")
 
@@ -75,8 +76,16 @@ def _limits(geo, clouds):
     return (x0, x1), (-0.15, y1)
 
 
-def animate(sol, path, fps: float = 15.0, max_frames: int = 60, show_forces: bool = True,
-            show_warm_start: bool = True, dpi: int = 80, force_scale: float | None = None) -> pathlib.Path:
+def animate(
+    sol,
+    path,
+    fps: float = 15.0,
+    max_frames: int = 60,
+    show_forces: bool = True,
+    show_warm_start: bool = True,
+    dpi: int = 80,
+    force_scale: float | None = None,
+) -> pathlib.Path:
     """Write an animation of ``sol`` to ``path`` (.gif, or .mp4 when ffmpeg is available).
 
     fps: frames per second; max_frames: frame budget (>= 2; the frames are evenly spaced in time);
@@ -125,14 +134,27 @@ def animate(sol, path, fps: float = 15.0, max_frames: int = 60, show_forces: boo
         active, f_contact, foot, cop = _forces_at(sol, times)
         largest = max(float(np.abs(f_contact).max(initial=0.0)), float(np.abs(foot).max(initial=0.0)), 1.0)
         scale = force_scale if force_scale is not None else ARROW_LENGTH_M / largest
-        quiver: dict[str, Any] = {"angles": "xy", "scale_units": "xy", "scale": 1.0 / scale, "width": 0.006,
-                                  "zorder": 5}
-        contact_q = ax.quiver(np.zeros(active.size), np.zeros(active.size), np.zeros(active.size),
-                              np.zeros(active.size), color=CONTACT_ARROW_COLOR, **quiver)
+        quiver: dict[str, Any] = {
+            "angles": "xy",
+            "scale_units": "xy",
+            "scale": 1.0 / scale,
+            "width": 0.006,
+            "zorder": 5,
+        }
+        contact_q = ax.quiver(
+            np.zeros(active.size),
+            np.zeros(active.size),
+            np.zeros(active.size),
+            np.zeros(active.size),
+            color=CONTACT_ARROW_COLOR,
+            **quiver,
+        )
         foot_q = ax.quiver([0.0], [0.0], [0.0], [0.0], color=FOOT_ARROW_COLOR, **quiver)
         arrows = (contact_q, foot_q)
-        handles += [Line2D([], [], color=CONTACT_ARROW_COLOR, lw=2, label="contact force"),
-                    Line2D([], [], color=FOOT_ARROW_COLOR, lw=2, label="foot reaction (at CoP)")]
+        handles += [
+            Line2D([], [], color=CONTACT_ARROW_COLOR, lw=2, label="contact force"),
+            Line2D([], [], color=FOOT_ARROW_COLOR, lw=2, label="foot reaction (at CoP)"),
+        ]
     fig.legend(handles=handles, loc="outside lower center", ncols=len(handles), fontsize=7, frameon=False)
 
     fig.canvas.draw()

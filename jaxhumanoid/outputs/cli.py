@@ -140,7 +140,8 @@ def cmd_solve(args) -> int:
 
 def _table2_markdown(records) -> str:
     lines = [
-        "| task | scheme | ours: status | ours: iterations | ours: solve time (s) | paper: iterations | paper: time (s) |",
+        "| task | scheme | ours: status | ours: iterations | ours: solve time (s) "
+        "| paper: iterations | paper: time (s) |",
         "|---|---|---|---|---|---|---|",
     ]
     for r in records:
@@ -331,7 +332,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--sensitivities",
         action="store_true",
-        help="instead: KKT sensitivities of the optimal trajectory against finite differences of re-solves (1S, every parameter group)",
+        help="instead: KKT sensitivities of the optimal trajectory against finite differences of re-solves "
+        "(1S, every parameter group)",
     )
     p.add_argument("--eps", type=float, default=1e-5, help="finite-difference step of --sensitivities (relative)")
     p.add_argument(

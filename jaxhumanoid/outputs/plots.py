@@ -26,8 +26,18 @@ from matplotlib.patches import Circle
 from jaxhumanoid.model.params import default_joint_names
 
 # Colours of the joints O_1, O_2, ... (cycled beyond ten joints); red is kept for the warm start.
-JOINT_COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b",
-                "#e377c2", "#17becf", "#bcbd22", "#7f7f7f", "#aec7e8")
+JOINT_COLORS = (
+    "#1f77b4",
+    "#ff7f0e",
+    "#2ca02c",
+    "#9467bd",
+    "#8c564b",
+    "#e377c2",
+    "#17becf",
+    "#bcbd22",
+    "#7f7f7f",
+    "#aec7e8",
+)
 FINAL_COLOR = "#5aaee8"  # light blue, final trajectory
 WARM_COLOR = "#d62728"  # red, stage-1 warm start
 PUSH_COLORS = ("#2ca02c", "#d62728")  # distal joint's f_t >= 0 (green), f_t < 0 (red)
@@ -155,12 +165,23 @@ def draw_ground(ax, x0: float, x1: float):
 def draw_stick(ax, points, color, head=None, lw=2.2, alpha=1.0, zorder=3):
     """One stick figure (links, joint dots and, when ``head`` is a joint row, a head); returns
     (line, head patch, head) for :func:`update_stick` (patch and head None without a head)."""
-    (line,) = ax.plot(points[:, 0], points[:, 1], "-o", color=color, lw=lw, ms=2.5 * lw / 2.2,
-                      alpha=alpha, zorder=zorder, solid_capstyle="round", solid_joinstyle="round")
+    (line,) = ax.plot(
+        points[:, 0],
+        points[:, 1],
+        "-o",
+        color=color,
+        lw=lw,
+        ms=2.5 * lw / 2.2,
+        alpha=alpha,
+        zorder=zorder,
+        solid_capstyle="round",
+        solid_joinstyle="round",
+    )
     if head is None:
         return line, None, None
-    patch = Circle(head_centre(points, head), HEAD_RADIUS, facecolor="none", edgecolor=color, lw=lw,
-                   alpha=alpha, zorder=zorder)
+    patch = Circle(
+        head_centre(points, head), HEAD_RADIUS, facecolor="none", edgecolor=color, lw=lw, alpha=alpha, zorder=zorder
+    )
     ax.add_patch(patch)
     return line, patch, head
 
@@ -200,8 +221,10 @@ def _title(sol) -> str:
     else:
         statuses = " + ".join(s.status for s in sol.stages)
         state = "converged" if sol.success else f"NOT converged ({statuses})"
-    return (f"task {sol.task}  |  scheme {sol.scheme}  |  solver {sol.solver}  |  "
-            f"objective J = {float(sol.objective):.4g}  |  {state}")
+    return (
+        f"task {sol.task}  |  scheme {sol.scheme}  |  solver {sol.solver}  |  "
+        f"objective J = {float(sol.objective):.4g}  |  {state}"
+    )
 
 
 def _frames_panel(ax, sol, geo, times):
@@ -232,10 +255,21 @@ def _frames_panel(ax, sol, geo, times):
         ax.spines[side].set_visible(False)
     handles = [Line2D([], [], color=FINAL_COLOR, lw=2.4, marker="o", ms=3, label="final trajectory")]
     if warm is not None:
-        handles.append(Line2D([], [], color=WARM_COLOR, lw=1.6, alpha=0.6, marker="o", ms=3,
-                              label="warm start (stage 1, interpolated)"))
-    ax.legend(handles=handles, loc="upper right", fontsize=8, frameon=False, ncols=len(handles),
-              bbox_to_anchor=(1.0, 1.12))
+        handles.append(
+            Line2D(
+                [],
+                [],
+                color=WARM_COLOR,
+                lw=1.6,
+                alpha=0.6,
+                marker="o",
+                ms=3,
+                label="warm start (stage 1, interpolated)",
+            )
+        )
+    ax.legend(
+        handles=handles, loc="upper right", fontsize=8, frameon=False, ncols=len(handles), bbox_to_anchor=(1.0, 1.12)
+    )
 
 
 def _angles_panel(ax, sol, geo):
@@ -282,17 +316,29 @@ def _forces_panel(ax, sol, geo):
             if tm.size > 1:
                 segs, colors = _signed_segments(tm, np.abs(ft), ft)
                 ax.add_collection(LineCollection(segs, colors=colors, lw=2.0, zorder=4))
-            handles += [Line2D([], [], color=PUSH_COLORS[0], lw=2.0, label=f"{name} $|f_t|$, " + r"$f_t \geq 0$"),
-                        Line2D([], [], color=PUSH_COLORS[1], lw=2.0, label=f"{name} $|f_t|$, " + r"$f_t < 0$")]
+            handles += [
+                Line2D([], [], color=PUSH_COLORS[0], lw=2.0, label=f"{name} $|f_t|$, " + r"$f_t \geq 0$"),
+                Line2D([], [], color=PUSH_COLORS[1], lw=2.0, label=f"{name} $|f_t|$, " + r"$f_t < 0$"),
+            ]
         else:
             color = joint_color(i - 1)
             ax.plot(tm, np.abs(fn), color=color, lw=1.3)
             ax.plot(tm, np.abs(ft), color=color, lw=1.3, ls=":")
-            handles += [Line2D([], [], color=color, lw=1.3, label=f"{name} $|f_n|$"),
-                        Line2D([], [], color=color, lw=1.3, ls=":", label=f"{name} $|f_t|$")]
+            handles += [
+                Line2D([], [], color=color, lw=1.3, label=f"{name} $|f_n|$"),
+                Line2D([], [], color=color, lw=1.3, ls=":", label=f"{name} $|f_t|$"),
+            ]
     if not handles:
-        ax.text(0.5, 0.5, "no modelled contact forces\n(no active contacts)", transform=ax.transAxes,
-                ha="center", va="center", fontsize=9, color="0.4")
+        ax.text(
+            0.5,
+            0.5,
+            "no modelled contact forces\n(no active contacts)",
+            transform=ax.transAxes,
+            ha="center",
+            va="center",
+            fontsize=9,
+            color="0.4",
+        )
     else:
         ax.legend(handles=handles, fontsize=7, ncols=2)
     ax.autoscale_view()  # the LineCollection does not rescale the axes by itself

@@ -45,8 +45,13 @@ class Progress:
     clock: a monotonic clock in seconds (``time.perf_counter``; replaceable for tests).
     """
 
-    def __init__(self, total: int, quiet: bool = False, stream: TextIO | None = None,
-                 clock: Callable[[], float] = time.perf_counter):
+    def __init__(
+        self,
+        total: int,
+        quiet: bool = False,
+        stream: TextIO | None = None,
+        clock: Callable[[], float] = time.perf_counter,
+    ):
         if not isinstance(total, int) or isinstance(total, bool) or total < 0:
             raise ValueError(f"total: expected a non-negative integer number of steps, got {total!r}")
         self.total = total
@@ -114,8 +119,9 @@ class Progress:
         self._notes = []
         eta = self.eta
         eta_text = f"  ETA {format_duration(eta)}" if eta is not None and self.done < self.total else ""
-        self._emit(f"{self._prefix(index, label)}  done in {format_duration(duration)}"
-                   f"{'  ' + text if text else ''}{eta_text}")
+        self._emit(
+            f"{self._prefix(index, label)}  done in {format_duration(duration)}{'  ' + text if text else ''}{eta_text}"
+        )
         return duration
 
     def summary(self) -> str:

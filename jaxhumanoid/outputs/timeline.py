@@ -64,8 +64,9 @@ def contact_mask(sol, force_threshold: float = FORCE_THRESHOLD_N, gap_threshold:
     return mask, tuple(criteria)
 
 
-def contact_intervals(sol, force_threshold: float = FORCE_THRESHOLD_N,
-                      gap_threshold: float = GAP_THRESHOLD_M) -> dict[str, list[tuple[float, float]]]:
+def contact_intervals(
+    sol, force_threshold: float = FORCE_THRESHOLD_N, gap_threshold: float = GAP_THRESHOLD_M
+) -> dict[str, list[tuple[float, float]]]:
     """Contact spans per joint name: {"knee": [(t_start, t_end), ...], ..., "hand": [...]} (seconds).
 
     Joints in ``sol.active`` are in contact where f_n > ``force_threshold`` (N); the others where
@@ -75,8 +76,7 @@ def contact_intervals(sol, force_threshold: float = FORCE_THRESHOLD_N,
     return {name: intervals_from_mask(sol.t, mask[:, j]) for j, name in enumerate(geometry_of(sol)["names"])}
 
 
-def contact_summary(sol, force_threshold: float = FORCE_THRESHOLD_N,
-                    gap_threshold: float = GAP_THRESHOLD_M) -> dict:
+def contact_summary(sol, force_threshold: float = FORCE_THRESHOLD_N, gap_threshold: float = GAP_THRESHOLD_M) -> dict:
     """JSON-ready record of the contact sequence for report.json."""
     mask, criteria = contact_mask(sol, force_threshold, gap_threshold)
     names = geometry_of(sol)["names"]
@@ -84,8 +84,9 @@ def contact_summary(sol, force_threshold: float = FORCE_THRESHOLD_N,
         "force_threshold_N": float(force_threshold),
         "gap_threshold_m": float(gap_threshold),
         "criterion": dict(zip(names, criteria)),
-        "intervals": {name: [list(span) for span in intervals_from_mask(sol.t, mask[:, j])]
-                      for j, name in enumerate(names)},
+        "intervals": {
+            name: [list(span) for span in intervals_from_mask(sol.t, mask[:, j])] for j, name in enumerate(names)
+        },
     }
 
 
@@ -111,8 +112,14 @@ def _gantt_panel(ax, sol, mask, criteria, names):
     for j in range(len(names)):
         spans = [(a, b - a) for a, b in intervals_from_mask(t, mask[:, j])]
         by_force = criteria[j] == "force"
-        ax.broken_barh(spans, (j - 0.35, 0.7), facecolors=joint_color(j) if by_force else "none",
-                       edgecolors=joint_color(j), hatch=None if by_force else "///", lw=1.0)
+        ax.broken_barh(
+            spans,
+            (j - 0.35, 0.7),
+            facecolors=joint_color(j) if by_force else "none",
+            edgecolors=joint_color(j),
+            hatch=None if by_force else "///",
+            lw=1.0,
+        )
     labels = [f"{name} (O$_{{{j + 1}}}$)" for j, name in enumerate(names)]
     ax.set_yticks(range(len(names)), labels)
     ax.set_ylim(len(names) - 0.4, -0.6)
@@ -120,8 +127,10 @@ def _gantt_panel(ax, sol, mask, criteria, names):
     ax.grid(axis="x", color="0.9")
     ax.set_ylabel("joint in contact")
     ax.set_xlabel("time t (s)")
-    handles = [Patch(facecolor="0.5", edgecolor="0.5", label="f$_n$ > force threshold (active contact)"),
-               Patch(facecolor="none", edgecolor="0.5", hatch="///", label="gap < gap threshold (no force model)")]
+    handles = [
+        Patch(facecolor="0.5", edgecolor="0.5", label="f$_n$ > force threshold (active contact)"),
+        Patch(facecolor="none", edgecolor="0.5", hatch="///", label="gap < gap threshold (no force model)"),
+    ]
     ax.legend(handles=handles, fontsize=7, loc="upper right", bbox_to_anchor=(1.0, 1.28), ncols=2, frameon=False)
 
 
@@ -157,8 +166,9 @@ def _cop_panel(ax, t, margins, geo):
     ax.legend(fontsize=7, loc="best")
 
 
-def plot_contact_timeline(sol, path=None, force_threshold: float = FORCE_THRESHOLD_N,
-                          gap_threshold: float = GAP_THRESHOLD_M, dpi: int = 120) -> Figure:
+def plot_contact_timeline(
+    sol, path=None, force_threshold: float = FORCE_THRESHOLD_N, gap_threshold: float = GAP_THRESHOLD_M, dpi: int = 120
+) -> Figure:
     """Gantt chart of the contacts of O_1..O_n (the humanoid: knee ... hand) plus the steady-foot margins.
 
     Saved as PNG when ``path`` is given; returns the :class:`~matplotlib.figure.Figure`.
@@ -176,8 +186,11 @@ def plot_contact_timeline(sol, path=None, force_threshold: float = FORCE_THRESHO
     _cop_panel(ax_cop, sol.t, margins, geo)
     ax_gantt.tick_params(labelbottom=True)
     ax_fric.tick_params(labelbottom=True)
-    fig.suptitle(f"contact sequence  |  task {sol.task}, scheme {sol.scheme}, solver {sol.solver}  |  "
-                 f"thresholds: f$_n$ > {force_threshold:g} N, gap < {gap_threshold * 1e3:g} mm", fontsize=10)
+    fig.suptitle(
+        f"contact sequence  |  task {sol.task}, scheme {sol.scheme}, solver {sol.solver}  |  "
+        f"thresholds: f$_n$ > {force_threshold:g} N, gap < {gap_threshold * 1e3:g} mm",
+        fontsize=10,
+    )
     if path is not None:
         save_png(fig, pathlib.Path(path), dpi=dpi)
     return fig

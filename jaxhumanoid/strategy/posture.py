@@ -72,10 +72,10 @@ class Equilibrium:
 class MarginSpec:
     """The margins a start posture must keep (see the module docstring)."""
 
-    load_min: float = 0.1          # f_n0 >= load_min M g
-    friction_margin: float = 0.1   # |f_t0| <= (1 - friction_margin) mu f_n0
-    cop_margin: float = 0.02       # m inside each edge of the sole
-    clearance: float = 0.01        # m above the ground for the joints without contact force
+    load_min: float = 0.1  # f_n0 >= load_min M g
+    friction_margin: float = 0.1  # |f_t0| <= (1 - friction_margin) mu f_n0
+    cop_margin: float = 0.02  # m inside each edge of the sole
+    clearance: float = 0.01  # m above the ground for the joints without contact force
 
 
 def _params(model, foot, contact, q, active) -> tr.OCPParams:
@@ -101,16 +101,26 @@ def _constraints(p: tr.OCPParams, active, spec: MarginSpec):
 
     def c(q):
         u, _, (f_t0, f_n0), gaps = _rest(p, q, active)
-        rows = [f_n0 - spec.load_min * weight,
-                (1 - spec.friction_margin) * mu * f_n0 - f_t0, (1 - spec.friction_margin) * mu * f_n0 + f_t0,
-                (foot.a0f - spec.cop_margin) * f_n0 + u[0], (foot.a0b - spec.cop_margin) * f_n0 - u[0]]
+        rows = [
+            f_n0 - spec.load_min * weight,
+            (1 - spec.friction_margin) * mu * f_n0 - f_t0,
+            (1 - spec.friction_margin) * mu * f_n0 + f_t0,
+            (foot.a0f - spec.cop_margin) * f_n0 + u[0],
+            (foot.a0b - spec.cop_margin) * f_n0 - u[0],
+        ]
         return jnp.concatenate([jnp.stack(rows), weight * (gaps[free] - spec.clearance)])
 
     return c
 
 
-def margins(model: PlanarChain, q, active, contact: ContactParams | None = None, foot: FootParams | None = None,
-            spec: MarginSpec = MarginSpec()) -> Margins:
+def margins(
+    model: PlanarChain,
+    q,
+    active,
+    contact: ContactParams | None = None,
+    foot: FootParams | None = None,
+    spec: MarginSpec = MarginSpec(),
+) -> Margins:
     """What posture q (n,) carries at rest under ``contact`` (default nominal) on ``foot``."""
     foot = FootParams.paper() if foot is None else foot
     contact = ContactParams.nominal() if contact is None else contact
@@ -119,11 +129,17 @@ def margins(model: PlanarChain, q, active, contact: ContactParams | None = None,
     u, f, f_c0, gaps = (np.asarray(a) for a in _rest(p, q, tuple(active)))
     c = np.asarray(_constraints(p, tuple(active), spec)(q))
     f_n0 = float(f_c0[1])
-    return Margins(u=u, forces=f, foot_reaction=f_c0,
-                   foot=np.asarray(ft.foot_constraints(p.foot, p.contact.mu, jnp.asarray(f_c0), u[0])),
-                   gaps=gaps, load=f_n0 / float(np.sum(np.asarray(model.m)) * float(model.g)),
-                   friction=abs(float(f_c0[0])) / max(float(contact.mu) * f_n0, 1e-300),
-                   cop=float(u[0]) / f_n0 if f_n0 > 0 else float("nan"), ok=bool(np.all(c >= -1e-6)))
+    return Margins(
+        u=u,
+        forces=f,
+        foot_reaction=f_c0,
+        foot=np.asarray(ft.foot_constraints(p.foot, p.contact.mu, jnp.asarray(f_c0), u[0])),
+        gaps=gaps,
+        load=f_n0 / float(np.sum(np.asarray(model.m)) * float(model.g)),
+        friction=abs(float(f_c0[0])) / max(float(contact.mu) * f_n0, 1e-300),
+        cop=float(u[0]) / f_n0 if f_n0 > 0 else float("nan"),
+        ok=bool(np.all(c >= -1e-6)),
+    )
 
 
 def _inverse_normal_force(contact: ContactParams, f):
@@ -156,9 +172,17 @@ def reseat_for_contact(p: tr.OCPParams, q, active, new_contact: ContactParams, i
     return q_new, float(np.max(np.abs(target - gaps[loaded])))
 
 
-def find_equilibrium(model: PlanarChain, q_guess, active, contact: ContactParams | None = None,
-                     foot: FootParams | None = None, q_min=None, q_max=None,
-                     spec: MarginSpec = MarginSpec(), relaxed: ContactParams | None = None) -> Equilibrium:
+def find_equilibrium(
+    model: PlanarChain,
+    q_guess,
+    active,
+    contact: ContactParams | None = None,
+    foot: FootParams | None = None,
+    q_min=None,
+    q_max=None,
+    spec: MarginSpec = MarginSpec(),
+    relaxed: ContactParams | None = None,
+) -> Equilibrium:
     """The static equilibrium nearest to ``q_guess`` (n,) that keeps the foot steady with margin.
 
     ``active``: the joints (1..n) that may carry contact forces; ``contact`` the law (default
@@ -181,19 +205,31 @@ def find_equilibrium(model: PlanarChain, q_guess, active, contact: ContactParams
     dc = jax.jit(jax.jacfwd(_constraints(p, active, spec)))
     scale = 1.0 / max(float(np.sum(np.asarray(model.m)) * float(model.g)), 1.0)
     res = optimize.minimize(
-        lambda q: float(np.sum((q - q_guess) ** 2)), np.clip(q_guess, lo, hi), jac=lambda q: 2.0 * (q - q_guess),
-        method="SLSQP", bounds=list(zip(lo, hi)),
-        constraints=[{"type": "ineq", "fun": lambda q: scale * np.asarray(c(q)),
-                      "jac": lambda q: scale * np.asarray(dc(q))}],
-        options={"maxiter": 500, "ftol": 1e-14})
+        lambda q: float(np.sum((q - q_guess) ** 2)),
+        np.clip(q_guess, lo, hi),
+        jac=lambda q: 2.0 * (q - q_guess),
+        method="SLSQP",
+        bounds=list(zip(lo, hi)),
+        constraints=[
+            {"type": "ineq", "fun": lambda q: scale * np.asarray(c(q)), "jac": lambda q: scale * np.asarray(dc(q))}
+        ],
+        options={"maxiter": 500, "ftol": 1e-14},
+    )
     q = np.asarray(res.x, dtype=float)
     nominal = margins(model, q, active, contact, foot, spec)
     if not nominal.ok:
-        raise ValueError(f"find_equilibrium: no static equilibrium keeping the foot steady (5) with margin "
-                         f"was found near q_guess (SLSQP: {res.message}); at the end the foot load is "
-                         f"{nominal.load:.2f} M g, friction use {nominal.friction:.2f}, centre of pressure "
-                         f"{nominal.cop:+.3f} m in [{-float(foot.a0f):.3f}, {float(foot.a0b):.3f}]")
+        raise ValueError(
+            f"find_equilibrium: no static equilibrium keeping the foot steady (5) with margin "
+            f"was found near q_guess (SLSQP: {res.message}); at the end the foot load is "
+            f"{nominal.load:.2f} M g, friction use {nominal.friction:.2f}, centre of pressure "
+            f"{nominal.cop:+.3f} m in [{-float(foot.a0f):.3f}, {float(foot.a0b):.3f}]"
+        )
     relaxed = ContactParams.relaxed() if relaxed is None else relaxed
     q_rel, _ = reseat_for_contact(p, q, active, relaxed)
-    return Equilibrium(q=q, moved=float(np.max(np.abs(q - q_guess))), nominal=nominal, q_relaxed=q_rel,
-                       relaxed=margins(model, q_rel, active, relaxed, foot, spec))
+    return Equilibrium(
+        q=q,
+        moved=float(np.max(np.abs(q - q_guess))),
+        nominal=nominal,
+        q_relaxed=q_rel,
+        relaxed=margins(model, q_rel, active, relaxed, foot, spec),
+    )

@@ -92,8 +92,14 @@ def build_problem(
         raise ValueError(f"T: expected a positive horizon in seconds, got {T!r}")
     p = tr.default_params(task, contact=contact, T=T, weights=weights, model=model, foot=foot)
     n = p.model.n
-    layout = tr.Layout(N=int(N), active=scheme.active_set(task.active, n), augmented=scheme.augmented,
-                       clearance=scheme.clearance, pseudo_static=bool(pseudo_static), n_links=n)
+    layout = tr.Layout(
+        N=int(N),
+        active=scheme.active_set(task.active, n),
+        augmented=scheme.augmented,
+        clearance=scheme.clearance,
+        pseudo_static=bool(pseudo_static),
+        n_links=n,
+    )
     if q_start is not None:
         q_start = np.asarray(q_start, dtype=float)
         if q_start.shape != (n,):
@@ -117,8 +123,9 @@ def build_problem(
     return Problem(task, scheme, layout, nlp, bounds, p)
 
 
-def stage_problem(task, scheme, N: int, pseudo_static: bool, model: PlanarChain | None = None,
-                  foot: FootParams | None = None) -> Problem:
+def stage_problem(
+    task, scheme, N: int, pseudo_static: bool, model: PlanarChain | None = None, foot: FootParams | None = None
+) -> Problem:
     """The NLP of one stage: the dynamic problem (6) with the nominal contact law, or the
     pseudo-static problem (8) of stage 1 with the relaxed law (``ContactParams.relaxed``)."""
     contact = ContactParams.relaxed() if pseudo_static else None

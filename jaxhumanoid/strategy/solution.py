@@ -125,7 +125,7 @@ class Solution:
         meta = json.loads(report_path.read_text())
         with np.load(npz_path) as data:
             arrays = {k: data[k] for k in ARRAY_FIELDS}
-            warm = {k[len("warm_start_"):]: data[k] for k in data.files if k.startswith("warm_start_")} or None
+            warm = {k[len("warm_start_") :]: data[k] for k in data.files if k.startswith("warm_start_")} or None
         return cls(
             task=meta["task"],
             scheme=meta["scheme"],

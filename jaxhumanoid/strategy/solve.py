@@ -153,8 +153,18 @@ def _stage_one(task, scheme, solver, final: Problem, N1: int, options, contact_s
     law = ContactParams.relaxed() if contact_stage1 is None else contact_stage1
     q_start1, _ = reseat_for_contact(final.p, final.p.q_start, final.layout.active, law)
     t0 = time.perf_counter()
-    first = build_problem(task, scheme, N=N1, T=float(final.p.T), pseudo_static=True, contact=law, q_start=q_start1,
-                          weights=np.asarray(final.p.weights), model=final.model, foot=final.p.foot)
+    first = build_problem(
+        task,
+        scheme,
+        N=N1,
+        T=float(final.p.T),
+        pseudo_static=True,
+        contact=law,
+        q_start=q_start1,
+        weights=np.asarray(final.p.weights),
+        model=final.model,
+        foot=final.p.foot,
+    )
     setup_first = time.perf_counter() - t0
     fallbacks = STAGE1_FALLBACKS if solver in ("ipopt", "casadi") else ()
     attempts = [_run_solver(solver, first, first.bounds.x0, options, verbose)]
@@ -173,8 +183,12 @@ def _check_inputs(N, T, N1, model, contact, foot, contact_stage1, options) -> No
             raise ValueError(f"{name}: expected an integer number of intervals >= 3, got {value!r}")
     if isinstance(T, bool) or not isinstance(T, (int, float, np.integer, np.floating)) or not np.isfinite(T) or T <= 0:
         raise ValueError(f"T: expected a positive horizon in seconds (a number), got {T!r}")
-    for name, value, cls in (("model", model, PlanarChain), ("contact", contact, ContactParams),
-                             ("foot", foot, FootParams), ("contact_stage1", contact_stage1, ContactParams)):
+    for name, value, cls in (
+        ("model", model, PlanarChain),
+        ("contact", contact, ContactParams),
+        ("foot", foot, FootParams),
+        ("contact_stage1", contact_stage1, ContactParams),
+    ):
         if value is not None and not isinstance(value, cls):
             raise ValueError(f"{name}: expected a {cls.__name__} or None, got {type(value).__name__}")
     for name, value in options.items():
@@ -190,8 +204,10 @@ def _weights_array(weights, n: int):
         return weights.as_array(n)
     w = np.asarray(weights, dtype=float) if not isinstance(weights, str) else np.array([np.nan])
     if w.shape != (n + 3,) or not np.all(np.isfinite(w)) or np.any(w < 0):
-        raise ValueError(f"weights: expected a Weights or {n + 3} finite weights >= 0 (w_u1..w_u{n}, w_qd, w_dqd, "
-                         f"w_du), got {weights!r}")
+        raise ValueError(
+            f"weights: expected a Weights or {n + 3} finite weights >= 0 (w_u1..w_u{n}, w_qd, w_dqd, "
+            f"w_du), got {weights!r}"
+        )
     return w
 
 
@@ -207,8 +223,11 @@ def _seated_task(task: Task, model, contact, foot) -> Task:
         return task
     q_min, q_max = task.joint_ranges(body)
     eq = find_equilibrium(body, task.start, task.active, contact=contact, foot=foot, q_min=q_min, q_max=q_max)
-    warnings.warn(f"task {task.key}: start posture moved by up to {eq.moved:.3f} rad to the nearest static "
-                  "equilibrium that keeps the foot steady under the given body and contact law", stacklevel=3)
+    warnings.warn(
+        f"task {task.key}: start posture moved by up to {eq.moved:.3f} rad to the nearest static "
+        "equilibrium that keeps the foot steady under the given body and contact law",
+        stacklevel=3,
+    )
     return dataclasses.replace(task, start=eq.q)
 
 
@@ -246,8 +265,16 @@ def solve(
     scheme = parse_scheme(scheme)
     if solver not in SOLVERS:
         raise ValueError(f"solver: {solver!r} not in {SOLVERS}")
-    _check_inputs(N, T, N1, model, contact, foot, contact_stage1,
-                  {"options": options, "stage1_options": stage1_options, "stage2_options": stage2_options})
+    _check_inputs(
+        N,
+        T,
+        N1,
+        model,
+        contact,
+        foot,
+        contact_stage1,
+        {"options": options, "stage1_options": stage1_options, "stage2_options": stage2_options},
+    )
     T = float(T)
     N1 = min(STAGE1_N, int(N)) if N1 is None else int(N1)
     weights = _weights_array(weights, task.n if model is None else model.n)

@@ -36,12 +36,17 @@ from jaxhumanoid.model.params import ContactParams, FootParams, PlanarChain
 from jaxhumanoid.ocp.tasks import Task, Weights
 
 PRESETS = {"humanoid": PlanarChain.humanoid}
-TABLES = {"name": None, "body": {"preset", "a", "c", "m", "inertia", "g", "names", "q_min", "q_max", "q_min_deg",
-                                 "q_max_deg", "scale_m"},
-          "foot": {"a0f", "a0b", "ankle_height"}, "contact": {"kappa", "f0", "xhat", "mu"},
-          "contact_stage1": {"kappa", "f0", "xhat", "mu"},
-          "task": {"start", "goal", "start_deg", "goal_deg", "active", "q_min", "q_max", "q_min_deg", "q_max_deg"},
-          "weights": {"w_u", "w_qd", "w_dqd", "w_du"}, "solve": {"scheme", "solver", "N", "T", "N1"}, "options": None}
+TABLES = {
+    "name": None,
+    "body": {"preset", "a", "c", "m", "inertia", "g", "names", "q_min", "q_max", "q_min_deg", "q_max_deg", "scale_m"},
+    "foot": {"a0f", "a0b", "ankle_height"},
+    "contact": {"kappa", "f0", "xhat", "mu"},
+    "contact_stage1": {"kappa", "f0", "xhat", "mu"},
+    "task": {"start", "goal", "start_deg", "goal_deg", "active", "q_min", "q_max", "q_min_deg", "q_max_deg"},
+    "weights": {"w_u", "w_qd", "w_dqd", "w_du"},
+    "solve": {"scheme", "solver", "N", "T", "N1"},
+    "options": None,
+}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -58,8 +63,15 @@ class TaskFile:
     options: dict
 
     def as_solve_kwargs(self) -> dict[str, Any]:
-        return dict(task=self.task, model=self.model, foot=self.foot, contact=self.contact,
-                    contact_stage1=self.contact_stage1, options=self.options or None, **self.settings)
+        return dict(
+            task=self.task,
+            model=self.model,
+            foot=self.foot,
+            contact=self.contact,
+            contact_stage1=self.contact_stage1,
+            options=self.options or None,
+            **self.settings,
+        )
 
 
 def _angles(where: str, table: dict, key: str, n: int | None):
@@ -81,8 +93,8 @@ def _body(where: str, table: dict) -> PlanarChain:
         raise ValueError(f"{where}.preset: {preset!r} is not one of {sorted(PRESETS)}")
     base = PRESETS[preset]() if preset else None
     if base is None and not {"a", "c", "m", "inertia"} <= set(table):
-        raise ValueError(f"{where}: give preset = \"humanoid\" or all of a, c, m, inertia")
-    fields = {k: np.asarray(table[k], dtype=float) for k in ("a", "c", "m", "inertia") if k in table}
+        raise ValueError(f'{where}: give preset = "humanoid" or all of a, c, m, inertia')
+    fields: dict[str, Any] = {k: np.asarray(table[k], dtype=float) for k in ("a", "c", "m", "inertia") if k in table}
     n = len(fields["a"]) if "a" in fields else (base.n if base else None)
     for key in ("q_min", "q_max"):
         value = _angles(where, table, key, n)
@@ -128,7 +140,7 @@ def load_task_file(path) -> TaskFile:
         raise ValueError(f"{path}: not valid TOML ({err})") from err
     _check_keys(path, data)
     if "name" not in data or "task" not in data:
-        raise ValueError(f"{path}: a task file needs name = \"...\" and a [task] table")
+        raise ValueError(f'{path}: a task file needs name = "..." and a [task] table')
     try:
         model = _body(f"{path}: [body]", data["body"]) if "body" in data else PlanarChain.humanoid()
         foot = _params(data.get("foot"), FootParams.paper)
@@ -140,9 +152,15 @@ def load_task_file(path) -> TaskFile:
         if start is None or goal is None or "active" not in t:
             raise ValueError(f"{where}: needs start (or start_deg), goal (or goal_deg) and active")
         w = data.get("weights", {})
-        task = Task(str(data["name"]), start, goal, tuple(t["active"]),
-                    weights=Weights(**w) if w else Weights(),
-                    q_min=_angles(where, t, "q_min", model.n), q_max=_angles(where, t, "q_max", model.n))
+        task = Task(
+            str(data["name"]),
+            start,
+            goal,
+            tuple(t["active"]),
+            weights=Weights(**w) if w else Weights(),
+            q_min=_angles(where, t, "q_min", model.n),
+            q_max=_angles(where, t, "q_max", model.n),
+        )
     except (TypeError, ValueError) as err:
         raise ValueError(f"{path}: {err}") from err
     settings = dict(data.get("solve", {}))

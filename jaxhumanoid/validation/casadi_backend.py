@@ -107,8 +107,9 @@ def _model(nb: _Numbers) -> _Model:
         joints.append(joint)
         coms.append(joint - float(nb.c[l]) * e)
     com_jac = [ca.jacobian(pc, q) for pc in coms]
-    kinetic = 0.5 * sum(float(nb.m[l]) * ca.sumsqr(com_jac[l] @ qd) + float(nb.inertia[l]) * thetad[l] ** 2
-                        for l in range(n))
+    kinetic = 0.5 * sum(
+        float(nb.m[l]) * ca.sumsqr(com_jac[l] @ qd) + float(nb.inertia[l]) * thetad[l] ** 2 for l in range(n)
+    )
     potential = nb.g * sum(float(nb.m[l]) * coms[l][1] for l in range(n))
     B = ca.hessian(kinetic, qd)[0]
     momentum = ca.gradient(kinetic, qd)

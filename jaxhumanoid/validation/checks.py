@@ -83,7 +83,9 @@ def sample_points(bounds, num_points: int, seed: int = 0) -> np.ndarray:
     return out
 
 
-def cross_validate(problem, points: int = 3, x=None, seed: int = 0, tol: float = CROSS_TOL, zero_tol: float = 1e-13) -> list[CheckRow]:
+def cross_validate(
+    problem, points: int = 3, x=None, seed: int = 0, tol: float = CROSS_TOL, zero_tol: float = 1e-13
+) -> list[CheckRow]:
     """Compare ``problem.nlp`` with its CasADi twin (``validation.casadi_backend``) at ``points`` random
     points inside the bounds (and at ``x`` if given), with random multipliers lam ~ N(0, 1) and
     sigma ~ U(0.5, 2) for the Lagrangian Hessian.
@@ -200,7 +202,9 @@ def finite_difference_check(
     rows = []
     for key, (ours, fd) in pairs.items():
         rows.append(CheckRow("finite differences", key, _rel(ours, fd), tol))
-        rows.append(CheckRow("finite differences", f"{key} (abs)", float(np.max(np.abs(ours - fd), initial=0.0)), np.inf))
+        rows.append(
+            CheckRow("finite differences", f"{key} (abs)", float(np.max(np.abs(ours - fd), initial=0.0)), np.inf)
+        )
     return rows
 
 
@@ -236,5 +240,8 @@ def format_table(rows: list[dict]) -> str:
     """Fixed-width text of ``check_table`` rows."""
     lines = [f"{'case':<32} {'check':<19} {'quantity':<24} {'value':>10} {'tol':>8}  ok"]
     for r in rows:
-        lines.append(f"{r['case']:<32} {r['check']:<19} {r['quantity']:<24} {r['value']:>10.2e} {r['tol']:>8.0e}  {'yes' if r['ok'] else 'NO'}")
+        lines.append(
+            f"{r['case']:<32} {r['check']:<19} {r['quantity']:<24} {r['value']:>10.2e} {r['tol']:>8.0e}  "
+            f"{'yes' if r['ok'] else 'NO'}"
+        )
     return "\n".join(lines)

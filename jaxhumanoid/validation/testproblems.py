@@ -45,12 +45,25 @@ def dense_nlp(name: str, n: int, m: int, f: Callable, g: Callable) -> NLP:
     def hess_values(x, lam, sigma, p):
         def lag(x_):
             return sigma * f(x_, p) + (jnp.dot(lam, g(x_, p)) if m else 0.0)
+
         return jax.hessian(lag)(x)[hr, hc]
 
-    return NLP(n=n, m=m, f=f, g=g if m else (lambda x, p: jnp.zeros(0)), grad=grad,
-               jac_values=jac_values, hess_values=hess_values,
-               jac_rows=jr.reshape(-1), jac_cols=jc.reshape(-1), hess_rows=hr, hess_cols=hc,
-               var_stage=np.zeros(n, np.int64), con_stage=np.zeros(m, np.int64), name=name)
+    return NLP(
+        n=n,
+        m=m,
+        f=f,
+        g=g if m else (lambda x, p: jnp.zeros(0)),
+        grad=grad,
+        jac_values=jac_values,
+        hess_values=hess_values,
+        jac_rows=jr.reshape(-1),
+        jac_cols=jc.reshape(-1),
+        hess_rows=hr,
+        hess_cols=hc,
+        var_stage=np.zeros(n, np.int64),
+        con_stage=np.zeros(m, np.int64),
+        name=name,
+    )
 
 
 def _cached(name, n, m, f, g):
@@ -64,8 +77,13 @@ _NLP_CACHE: dict = {}
 
 
 def _b(x0, xl, xu, gl, gu):
-    return Bounds(np.asarray(x0, float), np.asarray(xl, float), np.asarray(xu, float),
-                  np.asarray(gl, float), np.asarray(gu, float))
+    return Bounds(
+        np.asarray(x0, float),
+        np.asarray(xl, float),
+        np.asarray(xu, float),
+        np.asarray(gl, float),
+        np.asarray(gu, float),
+    )
 
 
 def hs001():
@@ -95,65 +113,123 @@ def hs013():
 
 
 def hs035():
-    f = lambda x, p: (9.0 - 8 * x[0] - 6 * x[1] - 4 * x[2] + 2 * x[0] ** 2 + 2 * x[1] ** 2 + x[2] ** 2
-                      + 2 * x[0] * x[1] + 2 * x[0] * x[2])
+    f = lambda x, p: (
+        9.0
+        - 8 * x[0]
+        - 6 * x[1]
+        - 4 * x[2]
+        + 2 * x[0] ** 2
+        + 2 * x[1] ** 2
+        + x[2] ** 2
+        + 2 * x[0] * x[1]
+        + 2 * x[0] * x[2]
+    )
     g = lambda x, p: jnp.array([x[0] + x[1] + 2.0 * x[2]])
-    return (_cached("hs035", 3, 1, f, g), _b([0.5] * 3, [0.0] * 3, [INF] * 3, [-INF], [3.0]), None,
-            1.0 / 9.0)
+    return (_cached("hs035", 3, 1, f, g), _b([0.5] * 3, [0.0] * 3, [INF] * 3, [-INF], [3.0]), None, 1.0 / 9.0)
 
 
 def hs071(p=None):
     """HS071; parameters p = (product bound 25, sum-of-squares 40); f* = 17.0140173."""
     f = lambda x, p: x[0] * x[3] * (x[0] + x[1] + x[2]) + x[2]
-    g = lambda x, p: jnp.array([jnp.prod(x) - p[0], jnp.sum(x ** 2) - p[1]])
+    g = lambda x, p: jnp.array([jnp.prod(x) - p[0], jnp.sum(x**2) - p[1]])
     p = jnp.array([25.0, 40.0]) if p is None else jnp.asarray(p, float)
-    return (_cached("hs071", 4, 2, f, g), _b([1.0, 5.0, 5.0, 1.0], [1.0] * 4, [5.0] * 4, [0.0, 0.0], [INF, 0.0]),
-            p, 17.0140172891)
+    return (
+        _cached("hs071", 4, 2, f, g),
+        _b([1.0, 5.0, 5.0, 1.0], [1.0] * 4, [5.0] * 4, [0.0, 0.0], [INF, 0.0]),
+        p,
+        17.0140172891,
+    )
 
 
 def hs076():
-    f = lambda x, p: (x[0] ** 2 + 0.5 * x[1] ** 2 + x[2] ** 2 + 0.5 * x[3] ** 2 - x[0] * x[2] + x[2] * x[3]
-                      - x[0] - 3.0 * x[1] + x[2] - x[3])
+    f = lambda x, p: (
+        x[0] ** 2
+        + 0.5 * x[1] ** 2
+        + x[2] ** 2
+        + 0.5 * x[3] ** 2
+        - x[0] * x[2]
+        + x[2] * x[3]
+        - x[0]
+        - 3.0 * x[1]
+        + x[2]
+        - x[3]
+    )
     g = lambda x, p: jnp.array([x[0] + 2 * x[1] + x[2] + x[3], 3 * x[0] + x[1] + 2 * x[2] - x[3], x[1] + 4 * x[2]])
-    return (_cached("hs076", 4, 3, f, g),
-            _b([0.5] * 4, [0.0] * 4, [INF] * 4, [-INF, -INF, 1.5], [5.0, 4.0, INF]), None, -4.681818181)
+    return (
+        _cached("hs076", 4, 3, f, g),
+        _b([0.5] * 4, [0.0] * 4, [INF] * 4, [-INF, -INF, 1.5], [5.0, 4.0, INF]),
+        None,
+        -4.681818181,
+    )
 
 
 def hs100():
     def f(x, p):
-        return ((x[0] - 10) ** 2 + 5 * (x[1] - 12) ** 2 + x[2] ** 4 + 3 * (x[3] - 11) ** 2 + 10 * x[4] ** 6
-                + 7 * x[5] ** 2 + x[6] ** 4 - 4 * x[5] * x[6] - 10 * x[5] - 8 * x[6])
+        return (
+            (x[0] - 10) ** 2
+            + 5 * (x[1] - 12) ** 2
+            + x[2] ** 4
+            + 3 * (x[3] - 11) ** 2
+            + 10 * x[4] ** 6
+            + 7 * x[5] ** 2
+            + x[6] ** 4
+            - 4 * x[5] * x[6]
+            - 10 * x[5]
+            - 8 * x[6]
+        )
 
     def g(x, p):
-        return jnp.array([
-            127 - 2 * x[0] ** 2 - 3 * x[1] ** 4 - x[2] - 4 * x[3] ** 2 - 5 * x[4],
-            282 - 7 * x[0] - 3 * x[1] - 10 * x[2] ** 2 - x[3] + x[4],
-            196 - 23 * x[0] - x[1] ** 2 - 6 * x[5] ** 2 + 8 * x[6],
-            -4 * x[0] ** 2 - x[1] ** 2 + 3 * x[0] * x[1] - 2 * x[2] ** 2 - 5 * x[5] + 11 * x[6],
-        ])
+        return jnp.array(
+            [
+                127 - 2 * x[0] ** 2 - 3 * x[1] ** 4 - x[2] - 4 * x[3] ** 2 - 5 * x[4],
+                282 - 7 * x[0] - 3 * x[1] - 10 * x[2] ** 2 - x[3] + x[4],
+                196 - 23 * x[0] - x[1] ** 2 - 6 * x[5] ** 2 + 8 * x[6],
+                -4 * x[0] ** 2 - x[1] ** 2 + 3 * x[0] * x[1] - 2 * x[2] ** 2 - 5 * x[5] + 11 * x[6],
+            ]
+        )
 
-    return (_cached("hs100", 7, 4, f, g), _b([1, 2, 0, 4, 0, 1, 1], [-INF] * 7, [INF] * 7, [0.0] * 4, [INF] * 4),
-            None, 680.6300573)
+    return (
+        _cached("hs100", 7, 4, f, g),
+        _b([1, 2, 0, 4, 0, 1, 1], [-INF] * 7, [INF] * 7, [0.0] * 4, [INF] * 4),
+        None,
+        680.6300573,
+    )
 
 
 def wachter_biegler():
     """min x1 s.t. x1^2 - x2 - 1 = 0, x1 - x3 - 0.5 = 0, x2, x3 >= 0, from (-2, 1, 1); f* = 1."""
     f = lambda x, p: x[0]
     g = lambda x, p: jnp.array([x[0] ** 2 - x[1] - 1.0, x[0] - x[2] - 0.5])
-    return (_cached("wachter_biegler", 3, 2, f, g),
-            _b([-2.0, 1.0, 1.0], [-INF, 0.0, 0.0], [INF] * 3, [0.0, 0.0], [0.0, 0.0]), None, 1.0)
+    return (
+        _cached("wachter_biegler", 3, 2, f, g),
+        _b([-2.0, 1.0, 1.0], [-INF, 0.0, 0.0], [INF] * 3, [0.0, 0.0], [0.0, 0.0]),
+        None,
+        1.0,
+    )
 
 
 def infeasible_disk():
     """x1^2 + x2^2 <= 1 and x1 + x2 >= 3: locally (and globally) infeasible."""
     f = lambda x, p: (x[0] - 1.0) ** 2 + x[1] ** 2
     g = lambda x, p: jnp.array([x[0] ** 2 + x[1] ** 2, x[0] + x[1]])
-    return (_cached("infeasible_disk", 2, 2, f, g), _b([0.0, 0.0], [-INF] * 2, [INF] * 2, [-INF, 3.0], [1.0, INF]),
-            None, None)
+    return (
+        _cached("infeasible_disk", 2, 2, f, g),
+        _b([0.0, 0.0], [-INF] * 2, [INF] * 2, [-INF, 3.0], [1.0, INF]),
+        None,
+        None,
+    )
 
 
-HS_PROBLEMS = {"hs001": hs001, "hs006": hs006, "hs010": hs010, "hs013": hs013, "hs035": hs035,
-               "hs071": hs071, "hs076": hs076, "hs100": hs100}
+HS_PROBLEMS = {
+    "hs001": hs001,
+    "hs006": hs006,
+    "hs010": hs010,
+    "hs013": hs013,
+    "hs035": hs035,
+    "hs071": hs071,
+    "hs076": hs076,
+    "hs100": hs100,
+}
 
 
 # --------------------------------------------------------------------------- staged OCP
@@ -171,15 +247,15 @@ def staged_nlp(name, N, nx, nu, stage_cost, terminal_cost, dynamics, path, n_pat
     nc = nx + n_path
     m = N * nc
     nv = nw + nx
-    loc = np.arange(N)[:, None] * nw + np.concatenate([np.arange(nw), nw + np.arange(nx)])[None, :]   # (N, nv)
+    loc = np.arange(N)[:, None] * nw + np.concatenate([np.arange(nw), nw + np.arange(nx)])[None, :]  # (N, nv)
 
     def stage_c(v, p):
         x, u, xn = v[:nx], v[nx:nw], v[nw:]
         return jnp.concatenate([dynamics(x, u, xn, p), path(x, u, p)])
 
     def split(z):
-        V = z[loc]                       # (N, nv)
-        return V, z[N * nw:]
+        V = z[loc]  # (N, nv)
+        return V, z[N * nw :]
 
     def f(z, p):
         V, xN = split(z)
@@ -220,9 +296,22 @@ def staged_nlp(name, N, nx, nu, stage_cost, terminal_cost, dynamics, path, n_pat
 
     var_stage = np.concatenate([np.repeat(np.arange(N), nw), np.full(nx, N)])
     con_stage = np.repeat(np.arange(N), nc)
-    return NLP(n=n, m=m, f=f, g=g, grad=jax.grad(f), jac_values=jac_values, hess_values=hess_values,
-               jac_rows=jr, jac_cols=jc, hess_rows=pairs[:, 0], hess_cols=pairs[:, 1],
-               var_stage=var_stage, con_stage=con_stage, name=name)
+    return NLP(
+        n=n,
+        m=m,
+        f=f,
+        g=g,
+        grad=jax.grad(f),
+        jac_values=jac_values,
+        hess_values=hess_values,
+        jac_rows=jr,
+        jac_cols=jc,
+        hess_rows=pairs[:, 0],
+        hess_cols=pairs[:, 1],
+        var_stage=var_stage,
+        con_stage=con_stage,
+        name=name,
+    )
 
 
 def cartpole_swingup(N: int = 50, P: int = 1, T: float = 4.0, u_max: float = 20.0, p_max: float = 2.0):
@@ -242,8 +331,8 @@ def cartpole_swingup(N: int = 50, P: int = 1, T: float = 4.0, u_max: float = 20.
         mc, mp, l, grav = p[1], p[2], p[3], p[4]
         th, vth = x[1], x[3]
         s, c = jnp.sin(th), jnp.cos(th)
-        thdd = (-grav * s - c * (u + mp * l * vth ** 2 * s) / (mc + mp)) / (l * (4.0 / 3.0 - mp * c ** 2 / (mc + mp)))
-        xdd = (u + mp * l * (vth ** 2 * s - thdd * c)) / (mc + mp)
+        thdd = (-grav * s - c * (u + mp * l * vth**2 * s) / (mc + mp)) / (l * (4.0 / 3.0 - mp * c**2 / (mc + mp)))
+        xdd = (u + mp * l * (vth**2 * s - thdd * c)) / (mc + mp)
         return jnp.array([x[2], x[3], xdd, thdd])
 
     def f_all(x, u, p):
@@ -259,7 +348,7 @@ def cartpole_swingup(N: int = 50, P: int = 1, T: float = 4.0, u_max: float = 20.
 
     def stage_cost(x, u, p):
         X = x.reshape(P, 4)
-        return p[0] * (jnp.sum(u ** 2) + 0.1 * jnp.sum(X[:, 2:] ** 2))
+        return p[0] * (jnp.sum(u**2) + 0.1 * jnp.sum(X[:, 2:] ** 2))
 
     def terminal_cost(x, p):
         return 0.0 * jnp.sum(x)
