@@ -1,0 +1,122 @@
+"""The public API as a user meets it: own bodies and tasks, task files, clear errors."""
+
+import dataclasses
+import pathlib
+
+import numpy as np
+import pytest
+
+import jaxhumanoid as jh
+from jaxhumanoid.outputs.cli import main
+
+EXAMPLES = pathlib.Path(__file__).resolve().parents[1] / "examples"
+
+
+def four_link() -> jh.PlanarChain:
+    """The Table I humanoid without its forearm."""
+    h = jh.PlanarChain.humanoid()
+    return jh.PlanarChain(
+        a=h.a[:4], c=h.c[:4], m=h.m[:4], inertia=h.inertia[:4], names=h.names[:4], q_min=h.q_min[:4], q_max=h.q_max[:4]
+    )
+
+
+def test_a_four_link_chain_squats_from_the_documented_api():
+    body = four_link()
+    task = squat_task(body)
+    sol = jh.solve(task, "A,F+C,1S", model=body, N=20, T=2.0)
+    assert sol.success, [s.status for s in sol.stages]
+    assert sol.q.shape == (21, 4) and np.all(np.abs(sol.q[-1] - task.goal) <= 0.05 + 1e-7)
+    assert np.all(sol.foot_margins > -1e-6)
+
+
+def squat_task(body) -> jh.Task:
+    stand = jh.find_equilibrium(body, np.radians([93, 0, 0, -180]), active=(4,))
+    squat = jh.find_equilibrium(body, np.radians([125, -105, 75, -180]), active=(4,))
+    return jh.Task("stand-to-squat", stand.q, squat.q, active=(4,), weights=jh.Weights(w_u=1e-3))
+
+
+def test_weights_are_accepted_as_an_object_or_an_array_and_give_the_same_solve():
+    body = four_link()
+    task, w = squat_task(body), jh.Weights(w_u=2e-3, w_dqd=3e-2)
+    a = jh.solve(task, "A,F+C,1S", model=body, N=20, T=2.0, weights=w)
+    b = jh.solve(task, "A,F+C,1S", model=body, N=20, T=2.0, weights=w.as_array(4))
+    assert a.success and np.array_equal(a.q, b.q) and a.objective == b.objective
+
+
+@pytest.mark.parametrize(
+    "kwargs, field",
+    [
+        (dict(T="5"), "T"),
+        (dict(N=2.5), "N"),
+        (dict(N1=1), "N1"),
+        (dict(weights=[1.0, 2.0]), "weights"),
+        (dict(model="humanoid"), "model"),
+        (dict(contact={"kappa": 1.0}), "contact"),
+        (dict(options=3), "options"),
+        (dict(solver="snopt"), "solver"),
+        (dict(task="T9"), "task"),
+    ],
+)
+def test_solve_rejects_bad_arguments_by_name_before_any_work(kwargs, field):
+    with pytest.raises(ValueError, match=field):
+        jh.solve(**{"task": "T1", **kwargs})
+
+
+def test_a_negative_link_length_is_rejected_naming_a():
+    h = jh.PlanarChain.humanoid()
+    with pytest.raises(ValueError, match=r"PlanarChain\.a"):
+        jh.PlanarChain(a=[-0.4, 0.5], c=[0.1, 0.1], m=[1.0, 1.0], inertia=[0.1, 0.1])
+    with pytest.raises(ValueError, match=r"PlanarChain\.a"):
+        dataclasses.replace(h, a=-np.asarray(h.a))
+
+
+def test_a_start_posture_the_body_cannot_hold_is_moved_to_an_equilibrium():
+    heavy_arm = dataclasses.replace(jh.PlanarChain.humanoid(), m=np.array([6.32, 20.7, 36.8, 20.0, 20.0]))
+    task = jh.get_task("T3")
+    with pytest.warns(UserWarning, match="start posture moved"):
+        sol = jh.solve(task, "A,F+C,1S", model=heavy_arm, N=10)
+    assert not np.array_equal(sol.q[0], task.start)
+    assert jh.find_equilibrium(heavy_arm, sol.q[0], task.active).moved < 1e-6
+
+
+@pytest.mark.parametrize("name", ["squat_4link", "bow_3link", "squat_7link"])
+def test_example_task_files_solve_from_the_command_line(name, tmp_path):
+    out = tmp_path / name
+    assert (
+        main(
+            [
+                "--no-cache",
+                "solve",
+                "--task-file",
+                str(EXAMPLES / f"{name}.toml"),
+                "--N",
+                "20",
+                "--quiet",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
+    sol = jh.Solution.load(out)
+    tf = jh.load_task_file(EXAMPLES / f"{name}.toml")
+    assert sol.q.shape == (21, tf.model.n) and np.all(np.abs(sol.q[-1] - tf.task.goal) <= 0.05 + 1e-7)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["humanoid_T3_soft", "T1", "T2", "T3", "T4"])
+def test_full_size_task_files_solve(name, tmp_path):
+    assert (
+        main(
+            [
+                "--no-cache",
+                "solve",
+                "--task-file",
+                str(EXAMPLES / f"{name}.toml"),
+                "--quiet",
+                "--out",
+                str(tmp_path / name),
+            ]
+        )
+        == 0
+    )
