@@ -43,6 +43,16 @@ def test_weights_are_accepted_as_an_object_or_an_array_and_give_the_same_solve()
     assert a.success and np.array_equal(a.q, b.q) and a.objective == b.objective
 
 
+def test_the_own_ipm_solves_a_body_of_other_than_five_links_as_ipopt_does():
+    body = four_link()
+    task = dataclasses.replace(squat_task(body), goal_tolerance=0.02)
+    a = jh.solve(task, "A,F+C,1S", model=body, N=12, T=2.0, solver="ipopt")
+    b = jh.solve(task, "A,F+C,1S", model=body, N=12, T=2.0, solver="ipm")
+    assert a.success and b.success
+    assert np.all(np.abs(a.q[-1] - task.goal) <= 0.02 + 1e-7)
+    assert abs(a.objective - b.objective) <= 1e-6 * abs(a.objective) and np.max(np.abs(a.q - b.q)) < 1e-4
+
+
 @pytest.mark.parametrize(
     "kwargs, field",
     [

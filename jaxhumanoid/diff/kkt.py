@@ -13,7 +13,7 @@ grad_x (f + lam . g) with respect to p at fixed (x, lam). The adjoint (VJP) solv
 symmetric system with right-hand side (ct_F, 0) and pulls the solution back through p by one
 reverse-mode gradient.
 
-Goal posture: the goal enters the *bounds* (the terminal box goal +- GOAL_TOLERANCE), not p. An
+Goal posture: the goal enters the *bounds* (the terminal box goal +- the task's goal_tolerance), not p. An
 active goal-box bound moves with the goal (dx_B = dgoal for those entries), inactive ones do not
 matter. Optimal value: by the envelope theorem dV/dp = d_p L(x*, lam*; p) (no solve needed) and
 dV/dgoal = z_l . dxl/dgoal - z_u . dxu/dgoal; the chain rule through the JVP
@@ -41,7 +41,6 @@ import scipy.sparse.linalg as spla
 from jaxhumanoid.diff.active_set import ActiveSet, dependent_active_rows, identify_active_set, implied_bounds
 from jaxhumanoid.diff.lagrangian import lagrangian_fns
 from jaxhumanoid.diff.trees import as_float_tree, zeros_like_params
-from jaxhumanoid.ocp import tasks as tasks_mod
 from jaxhumanoid.ocp import transcription as tr
 from jaxhumanoid.ocp.nlp import Bounds
 
@@ -53,7 +52,7 @@ def goal_bound_jacobians(problem) -> tuple[np.ndarray, np.ndarray]:
     bound moves with the goal unless it is clipped by the joint range.
     """
     layout, goal = problem.layout, np.asarray(problem.task.goal, dtype=float)
-    tol = tasks_mod.GOAL_TOLERANCE
+    tol = problem.task.goal_tolerance
     free = layout.free_mask()
     idx = np.full(free.shape, -1)
     idx[free] = np.arange(free.sum())
@@ -70,7 +69,8 @@ def goal_bound_jacobians(problem) -> tuple[np.ndarray, np.ndarray]:
 
 def bounds_for_goal(problem, goal) -> Bounds:
     """The problem's bounds with the terminal goal box moved to ``goal`` (n,)."""
-    lo, hi = tr.bounds_full(problem.layout, np.asarray(goal, dtype=float), *problem.joint_ranges())
+    q_min, q_max = problem.joint_ranges()
+    lo, hi = tr.bounds_full(problem.layout, np.asarray(goal, dtype=float), q_min, q_max, problem.task.goal_tolerance)
     free = problem.layout.free_mask()
     b = problem.bounds
     return Bounds(x0=np.clip(b.x0, lo[free], hi[free]), xl=lo[free], xu=hi[free], gl=b.gl, gu=b.gu)

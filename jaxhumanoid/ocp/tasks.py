@@ -92,7 +92,8 @@ def _posture(owner: str, name: str, value, n: int | None = None) -> np.ndarray:
 class Task:
     """Start and goal postures of a chain of n links, shape (n,) each; ``active``: the contact
     set F of the F+C scheme (joints in 1..n, Figs. 5-8); ``q_min``/``q_max``: joint ranges (n,)
-    replacing the body's (``PlanarChain.q_min``/``q_max``) when given; ``key``: a short name
+    replacing the body's (``PlanarChain.q_min``/``q_max``) when given; ``goal_tolerance``: the
+    half-width of the terminal box around the goal (rad, Sec. II-G); ``key``: a short name
     (default ``name``), e.g. ``T1`` for the paper's tasks."""
 
     name: str
@@ -102,12 +103,16 @@ class Task:
     weights: Weights = Weights()
     q_min: np.ndarray | None = None
     q_max: np.ndarray | None = None
+    goal_tolerance: float = GOAL_TOLERANCE
     key: str = ""
 
     def __post_init__(self):
         if not isinstance(self.name, str) or not self.name:
             raise ValueError(f"Task.name: expected a non-empty string, got {self.name!r}")
         object.__setattr__(self, "key", self.key or self.name)
+        tol = self.goal_tolerance
+        if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not np.isfinite(tol) or tol < 0:
+            raise ValueError(f"Task.goal_tolerance: expected a finite half-width >= 0 (rad), got {tol!r}")
         if not isinstance(self.weights, Weights):
             raise ValueError(f"Task.weights: expected a Weights, got {type(self.weights).__name__}")
         start = _posture("Task", "start", self.start)

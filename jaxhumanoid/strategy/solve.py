@@ -224,7 +224,7 @@ def _seated_task(task: Task, model, contact, foot) -> Task:
     q_min, q_max = task.joint_ranges(body)
     eq = find_equilibrium(body, task.start, task.active, contact=contact, foot=foot, q_min=q_min, q_max=q_max)
     warnings.warn(
-        f"task {task.key}: start posture moved by up to {eq.moved:.3f} rad to the nearest static "
+        f"task {task.key}: start posture moved by up to {eq.moved:.1e} rad to the nearest static "
         "equilibrium that keeps the foot steady under the given body and contact law",
         stacklevel=3,
     )

@@ -14,6 +14,7 @@
     [task]
     start_deg = [...]; goal_deg = [...]  # postures (or start/goal in rad), n each
     active = [1, 3]                      # the joints that may carry contact forces
+    goal_tolerance = 0.05                # rad, half-width of the terminal box (optional)
     q_min_deg = [...]; q_max_deg = [...] # optional, replace the body's ranges
     [weights]  w_u = 1e-3; w_qd = 1.0; w_dqd = 2e-2; w_du = 1e-5  # optional
     [solve]    scheme = "A,F+C,2S"; solver = "ipopt"; N = 60; T = 4.0; N1 = 20    # optional
@@ -33,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from jaxhumanoid.model.params import ContactParams, FootParams, PlanarChain
+from jaxhumanoid.ocp import tasks
 from jaxhumanoid.ocp.tasks import Task, Weights
 
 PRESETS = {"humanoid": PlanarChain.humanoid}
@@ -42,7 +44,18 @@ TABLES = {
     "foot": {"a0f", "a0b", "ankle_height"},
     "contact": {"kappa", "f0", "xhat", "mu"},
     "contact_stage1": {"kappa", "f0", "xhat", "mu"},
-    "task": {"start", "goal", "start_deg", "goal_deg", "active", "q_min", "q_max", "q_min_deg", "q_max_deg"},
+    "task": {
+        "start",
+        "goal",
+        "start_deg",
+        "goal_deg",
+        "active",
+        "q_min",
+        "q_max",
+        "q_min_deg",
+        "q_max_deg",
+        "goal_tolerance",
+    },
     "weights": {"w_u", "w_qd", "w_dqd", "w_du"},
     "solve": {"scheme", "solver", "N", "T", "N1"},
     "options": None,
@@ -160,6 +173,7 @@ def load_task_file(path) -> TaskFile:
             weights=Weights(**w) if w else Weights(),
             q_min=_angles(where, t, "q_min", model.n),
             q_max=_angles(where, t, "q_max", model.n),
+            goal_tolerance=float(t.get("goal_tolerance", tasks.GOAL_TOLERANCE)),
         )
     except (TypeError, ValueError) as err:
         raise ValueError(f"{path}: {err}") from err
