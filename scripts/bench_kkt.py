@@ -320,21 +320,23 @@ def load_module(path: str):
     return mod
 
 
+def structure_for(K, D):
+    """The static KKT structure of the matrices in ``D`` built by the kkt module ``K``."""
+    return K.build_structure(
+        int(D["n"]),
+        int(D["m"]),
+        D["var_stage"],
+        D["con_stage"],
+        D["hess_rows"],
+        D["hess_cols"],
+        D["jac_rows"],
+        D["jac_cols"],
+    )
+
+
 def compare(D, K_old, repeats, labels):
     """Interleaved timing of the baseline module against this kkt package on the same matrices."""
-    sts = {
-        name: K.build_structure(
-            int(D["n"]),
-            int(D["m"]),
-            D["var_stage"],
-            D["con_stage"],
-            D["hess_rows"],
-            D["hess_cols"],
-            D["jac_rows"],
-            D["jac_cols"],
-        )
-        for name, K in (("old", K_old), ("new", kkt))
-    }
+    sts = {name: structure_for(K, D) for name, K in (("old", K_old), ("new", kkt))}
     rows = []
     rng = np.random.default_rng(1)
     rx, rc = jnp.asarray(rng.standard_normal(int(D["n"]))), jnp.asarray(rng.standard_normal(int(D["m"])))
@@ -413,19 +415,7 @@ def main():
     cache_dir = pathlib.Path(args.data).with_suffix(".eig")
     cache_dir.mkdir(exist_ok=True)
     modules = [("new", kkt)] + ([("old", load_module(args.baseline_kkt))] if args.baseline_kkt else [])
-    sts = {
-        name: K.build_structure(
-            int(D["n"]),
-            int(D["m"]),
-            D["var_stage"],
-            D["con_stage"],
-            D["hess_rows"],
-            D["hess_cols"],
-            D["jac_rows"],
-            D["jac_cols"],
-        )
-        for name, K in modules
-    }
+    sts = {name: structure_for(K, D) for name, K in modules}
     st = sts["new"]
     load_before = uptime()
     print(f"n={st.n} m={st.m} S={st.S} nb={st.nb} nbx={st.nbx}; {load_before}")
