@@ -65,6 +65,11 @@ def _cached_nlp(layout: tr.Layout) -> NLP:
     return stagewise_nlp(layout, pattern_params(layout.n_links), name=f"N={layout.N}")
 
 
+def clear_nlp_cache() -> None:
+    """Forget the NLPs built so far (and the compiled programs they own)."""
+    _cached_nlp.cache_clear()
+
+
 def build_problem(
     task="T1",
     scheme="A,F+C,1S",
