@@ -1,4 +1,4 @@
-"""Test-session hygiene: compiled programs do not pile up across test modules.
+"""Compiled programs are released after each test module, so they do not pile up in one process.
 
 Each module compiles its own NLPs, IPM cores and derivative programs; one process running the
 whole suite would otherwise keep every executable alive until it exits.

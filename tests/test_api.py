@@ -89,25 +89,17 @@ def test_a_start_posture_the_body_cannot_hold_is_moved_to_an_equilibrium():
     assert jh.find_equilibrium(heavy_arm, sol.q[0], task.active).moved < 1e-6
 
 
+def solve_task_file(name: str, out: pathlib.Path, *flags: str) -> int:
+    """``jaxhumanoid solve --task-file examples/<name>.toml`` with extra flags; the exit status."""
+    return main(
+        ["--no-cache", "solve", "--task-file", str(EXAMPLES / f"{name}.toml"), "--quiet", "--out", str(out), *flags]
+    )
+
+
 @pytest.mark.parametrize("name", ["squat_4link", "bow_3link", "squat_7link"])
 def test_example_task_files_solve_from_the_command_line(name, tmp_path):
     out = tmp_path / name
-    assert (
-        main(
-            [
-                "--no-cache",
-                "solve",
-                "--task-file",
-                str(EXAMPLES / f"{name}.toml"),
-                "--N",
-                "20",
-                "--quiet",
-                "--out",
-                str(out),
-            ]
-        )
-        == 0
-    )
+    assert solve_task_file(name, out, "--N", "20") == 0
     sol = jh.Solution.load(out)
     tf = jh.load_task_file(EXAMPLES / f"{name}.toml")
     assert sol.q.shape == (21, tf.model.n) and np.all(np.abs(sol.q[-1] - tf.task.goal) <= 0.05 + 1e-7)
@@ -116,17 +108,4 @@ def test_example_task_files_solve_from_the_command_line(name, tmp_path):
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["humanoid_T3_soft", "T1", "T2", "T3", "T4"])
 def test_full_size_task_files_solve(name, tmp_path):
-    assert (
-        main(
-            [
-                "--no-cache",
-                "solve",
-                "--task-file",
-                str(EXAMPLES / f"{name}.toml"),
-                "--quiet",
-                "--out",
-                str(tmp_path / name),
-            ]
-        )
-        == 0
-    )
+    assert solve_task_file(name, tmp_path / name) == 0

@@ -4,7 +4,7 @@ The kernel is the ``python3`` kernelspec that ipykernel installs into the virtua
 (``<venv>/share/jupyter/kernels/python3``, argv ``python -m ipykernel_launcher``; jupyter_client
 replaces a bare ``python`` by ``sys.executable``), so the notebooks run in the same interpreter as
 the tests and no ``python -m ipykernel install --user`` is needed. Should the spec be missing, the
-session fixture installs it into ``sys.prefix``.
+``kernel_name`` fixture installs it into ``sys.prefix``.
 
 Notebooks are stored without outputs; executing them here does not write them back.
 """
@@ -25,7 +25,7 @@ KERNEL = "python3"
 CELL_TIMEOUT_S = 600
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="module")
 def kernel_name() -> str:
     from jupyter_client.kernelspec import KernelSpecManager, NoSuchKernel
 
