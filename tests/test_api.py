@@ -109,3 +109,13 @@ def test_example_task_files_solve_from_the_command_line(name, tmp_path):
 @pytest.mark.parametrize("name", ["humanoid_T3_soft", "T1", "T2", "T3", "T4"])
 def test_full_size_task_files_solve(name, tmp_path):
     assert solve_task_file(name, tmp_path / name) == 0
+
+
+@pytest.mark.parametrize("key", ["T1", "T2", "T3", "T4"])
+def test_the_example_task_files_pose_the_packaged_tasks(key):
+    tf = jh.load_task_file(EXAMPLES / f"{key}.toml")
+    task = jh.get_task(key)
+    np.testing.assert_allclose(tf.task.start, task.start, atol=1e-12)
+    np.testing.assert_allclose(tf.task.goal, task.goal, atol=1e-12)
+    assert tf.task.active == task.active
+    np.testing.assert_allclose(tf.task.weights.as_array(5), task.weights.as_array(5), rtol=1e-15)

@@ -294,7 +294,11 @@ def test_humanoid_is_table_one_with_named_joints_and_ranges():
     assert np.all(MODEL.q_min < MODEL.q_max) and MODEL.q_min.shape == MODEL.q_max.shape == (5,)
     # the names are static: not a leaf, part of the tree structure
     leaves = jax.tree_util.tree_leaves(MODEL)
-    assert all(isinstance(leaf, np.ndarray) for leaf in leaves) and len(leaves) == 7
+    assert all(isinstance(leaf, np.ndarray) for leaf in leaves) and len(leaves) == 8
+    # human strength, weaker in the arms than in the legs
+    assert MODEL.u_max.shape == (5,) and np.all(MODEL.u_max[3:] < MODEL.u_max[:3].min())
+    with pytest.raises(ValueError, match=r"PlanarChain\.u_max"):
+        dataclasses.replace(MODEL, u_max=np.array([300.0, 500.0, 400.0, 160.0, 0.0]))
     heavier = dataclasses.replace(MODEL, m=2 * MODEL.m)
     assert heavier.names == MODEL.names and float(heavier.total_mass) == pytest.approx(2 * 71.04)
     with pytest.raises(ValueError, match=r"PlanarChain\.m"):

@@ -70,7 +70,9 @@ def goal_bound_jacobians(problem) -> tuple[np.ndarray, np.ndarray]:
 def bounds_for_goal(problem, goal) -> Bounds:
     """The problem's bounds with the terminal goal box moved to ``goal`` (n,)."""
     q_min, q_max = problem.joint_ranges()
-    lo, hi = tr.bounds_full(problem.layout, np.asarray(goal, dtype=float), q_min, q_max, problem.task.goal_tolerance)
+    goal = np.asarray(goal, dtype=float)
+    u_max = np.asarray(problem.model.u_max)
+    lo, hi = tr.bounds_full(problem.layout, goal, q_min, q_max, u_max, problem.task.goal_tolerance)
     free = problem.layout.free_mask()
     b = problem.bounds
     return Bounds(x0=np.clip(b.x0, lo[free], hi[free]), xl=lo[free], xu=hi[free], gl=b.gl, gu=b.gu)

@@ -278,16 +278,16 @@ def default_params(
     )
 
 
-def bounds_full(layout: Layout, goal, q_min, q_max, goal_tol=tasks_mod.GOAL_TOLERANCE):
+def bounds_full(layout: Layout, goal, q_min, q_max, u_max, goal_tol=tasks_mod.GOAL_TOLERANCE):
     """Lower/upper bounds in the full layout (N+1, s): joint ranges q_min/q_max (n,), goal box,
-    torque and force boxes."""
+    torque box [-u_max, u_max] (n,) and force box."""
     sl = layout.stage_slices()
     lo = np.full((layout.N + 1, layout.s), -np.inf)
     hi = np.full((layout.N + 1, layout.s), np.inf)
     lo[:, sl["q"]], hi[:, sl["q"]] = q_min, q_max
     lo[-1, sl["q"]] = np.maximum(q_min, goal - goal_tol)
     hi[-1, sl["q"]] = np.minimum(q_max, goal + goal_tol)
-    lo[:, sl["u"]], hi[:, sl["u"]] = -tasks_mod.TORQUE_LIMIT, tasks_mod.TORQUE_LIMIT
+    lo[:, sl["u"]], hi[:, sl["u"]] = -np.asarray(u_max, dtype=float), np.asarray(u_max, dtype=float)
     if layout.augmented:
         lo[:, sl["f"]] = np.tile([-tasks_mod.CONTACT_FORCE_LIMIT, 0.0], len(layout.active))
         hi[:, sl["f"]] = tasks_mod.CONTACT_FORCE_LIMIT

@@ -112,7 +112,7 @@ def build_problem(
         p = dataclasses.replace(p, q_start=q_start)
     nlp = _cached_nlp(layout)
     q_min, q_max = task.joint_ranges(p.model)
-    lo, hi = tr.bounds_full(layout, task.goal, q_min, q_max, task.goal_tolerance)
+    lo, hi = tr.bounds_full(layout, task.goal, q_min, q_max, np.asarray(p.model.u_max), task.goal_tolerance)
     free = layout.free_mask()
     kinds = np.tile(layout.constraint_kinds(), layout.N)
     Z0 = tr.initial_guess_full(layout, np.asarray(p.q_start), task.goal, T)

@@ -13,7 +13,8 @@ Shapes (N intervals, N + 1 nodes; a chain of n links with joints O_1..O_n, named
     foot_margins (N, 5)      the five products of (5), >= 0 when the foot stays steady
     warm_start   optional dict {t, q}: the stage-1 solution interpolated onto t (2S only)
     geometry     link lengths "a" (n,), joint "names" (n strings), foot "ankle_height", "a0f",
-                 "a0b" and friction "mu": what the figures need without the model
+                 "a0b", friction "mu", link masses "m" (n,) and gravity "g": what the figures and
+                 the peak loads need without the model
 """
 
 from __future__ import annotations
@@ -43,6 +44,7 @@ class StageStats:
     n_variables: int
     n_constraints: int
     attempts: int = 1  # solver runs (a stage-1 fallback adds one)
+    start_violation: float = float("nan")  # max constraint violation at the stage's start point
 
 
 @dataclasses.dataclass
@@ -77,6 +79,20 @@ class Solution:
     def n_links(self) -> int:
         return int(np.shape(self.q)[1])
 
+    def peaks(self) -> dict[str, Any]:
+        """Peak loads of the motion: |u_i| per joint (N m), the largest normal force at each joint
+        O_1..O_n and on the foot (N), and the largest contact normal force over the body in units
+        of body weight M g (the foot excluded)."""
+        body_weight = float(np.sum(self.geometry["m"]) * self.geometry["g"]) if "m" in self.geometry else np.nan
+        f_n = np.asarray(self.f_contact)[..., 1]
+        peak = float(f_n.max()) if f_n.size else 0.0
+        return {
+            "torque_Nm": np.abs(np.asarray(self.u)).max(axis=0).tolist(),
+            "contact_normal_force_N": f_n.max(axis=0).tolist(),
+            "foot_normal_force_N": float(np.asarray(self.foot_reaction)[:, 1].max()),
+            "contact_normal_force_body_weights": peak / body_weight,
+        }
+
     def report(self) -> dict[str, Any]:
         """The report.json record (the fields the CLI and table2 promise)."""
         last = self.stages[-1]
@@ -99,6 +115,7 @@ class Solution:
             "T": float(self.t[-1] - self.t[0]),
             "active_contacts": list(self.active),
             "n_links": self.n_links,
+            "peaks": self.peaks(),
             "stages": [dataclasses.asdict(s) for s in self.stages],
         }
 

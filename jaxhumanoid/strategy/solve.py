@@ -25,7 +25,7 @@ from jaxhumanoid.ocp.scheme import parse_scheme
 from jaxhumanoid.ocp.tasks import Task, Weights, get_task
 from jaxhumanoid.solvers.ipm import solve_ipm
 from jaxhumanoid.solvers.ipopt import solve_ipopt
-from jaxhumanoid.solvers.result import NLPResult
+from jaxhumanoid.solvers.result import NLPResult, constraint_violation
 from jaxhumanoid.strategy.posture import find_equilibrium, margins, reseat_for_contact
 from jaxhumanoid.strategy.problem import Problem, build_problem
 from jaxhumanoid.strategy.solution import Solution, StageStats
@@ -74,11 +74,20 @@ def interpolate_full(Z_coarse: np.ndarray, T: float, layout_fine: tr.Layout) -> 
     return Z
 
 
-def _stage_stats(name: str, problem: Problem, attempts: list[NLPResult], setup_time_s: float) -> StageStats:
-    """Statistics of one stage from its solver runs (more than one when a fallback was needed):
-    status and objective of the last run, iterations and times summed over all of them.
-    ``compile_time_s`` counts the one-off work: problem set-up (pattern detection, colouring)
-    and tracing/compilation of the evaluators."""
+def start_violation(problem: Problem, x0) -> float:
+    """The largest constraint or bound violation of the start point x0 (n,) of a stage."""
+    _, g = problem.nlp.jitted().fg(np.asarray(x0, dtype=float), problem.p)
+    b = problem.bounds
+    return constraint_violation(np.asarray(g), x0, b.gl, b.gu, b.xl, b.xu)
+
+
+def _stage_stats(
+    name: str, problem: Problem, attempts: list[NLPResult], setup_time_s: float, x0
+) -> StageStats:
+    """Statistics of one stage from its solver runs (more than one when a fallback was needed) from
+    the start point x0: status and objective of the last run, iterations and times summed over all
+    of them. ``compile_time_s`` counts the one-off work: problem set-up (pattern detection,
+    colouring) and tracing/compilation of the evaluators."""
     res = attempts[-1]
     return StageStats(
         name=name,
@@ -92,6 +101,7 @@ def _stage_stats(name: str, problem: Problem, attempts: list[NLPResult], setup_t
         n_variables=int(problem.nlp.n),
         n_constraints=int(problem.nlp.m),
         attempts=len(attempts),
+        start_violation=start_violation(problem, x0),
     )
 
 
@@ -142,6 +152,8 @@ def make_solution(problem: Problem, x, stages, solver: str, warm_start=None) -> 
             "a0f": float(p.foot.a0f),
             "a0b": float(p.foot.a0b),
             "mu": float(p.contact.mu),
+            "m": np.asarray(p.model.m),
+            "g": float(p.model.g),
         },
         warm_start=warm_start,
     )
@@ -172,7 +184,7 @@ def _stage_one(task, scheme, solver, final: Problem, N1: int, options, contact_s
         if attempts[-1].success:
             break
         attempts.append(_run_solver(solver, first, first.bounds.x0, {**options, **extra}, verbose))
-    stats = _stage_stats("stage 1 (pseudo-static)", first, attempts, setup_first)
+    stats = _stage_stats("stage 1 (pseudo-static)", first, attempts, setup_first, first.bounds.x0)
     return stats, first.full(attempts[-1].x)
 
 
@@ -294,5 +306,5 @@ def solve(
     stage2 = {**(STAGE2_DEFAULTS if scheme.stages == 2 else {}), **(options or {}), **(stage2_options or {})}
     res = _run_solver(solver, final, x0, stage2, verbose)
     name = "stage 2 (dynamic)" if scheme.stages == 2 else "single stage"
-    stages.append(_stage_stats(name, final, [res], setup_final))
+    stages.append(_stage_stats(name, final, [res], setup_final, x0))
     return make_solution(final, res.x, stages, solver, warm_start=warm)

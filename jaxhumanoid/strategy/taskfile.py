@@ -7,6 +7,7 @@
     c = [...]; m = [...]; inertia = [...]
     g = 9.81; names = ["knee", "hip", "shoulder"]
     q_min_deg = [...]; q_max_deg = [...] #   joint ranges (degrees; q_min/q_max in rad also work)
+    u_max = [...]                        #   joint strengths (N m): torque box [-u_max, u_max]
     scale_m = 1.1                        #   multiply every mass (and inertia) by a factor
     [foot]     a0f = 0.2; a0b = 0.05; ankle_height = 0.08          # optional
     [contact]  kappa = 7e4; f0 = 100.0; xhat = 0.05; mu = 0.8      # optional; default nominal
@@ -40,7 +41,7 @@ from jaxhumanoid.ocp.tasks import Task, Weights
 PRESETS = {"humanoid": PlanarChain.humanoid}
 TABLES = {
     "name": None,
-    "body": {"preset", "a", "c", "m", "inertia", "g", "names", "q_min", "q_max", "q_min_deg", "q_max_deg", "scale_m"},
+    "body": {"preset", "a", "c", "m", "inertia", "g", "names", "q_min", "q_max", "q_min_deg", "q_max_deg", "u_max", "scale_m"},
     "foot": {"a0f", "a0b", "ankle_height"},
     "contact": {"kappa", "f0", "xhat", "mu"},
     "contact_stage1": {"kappa", "f0", "xhat", "mu"},
@@ -107,7 +108,8 @@ def _body(where: str, table: dict) -> PlanarChain:
     base = PRESETS[preset]() if preset else None
     if base is None and not {"a", "c", "m", "inertia"} <= set(table):
         raise ValueError(f'{where}: give preset = "humanoid" or all of a, c, m, inertia')
-    fields: dict[str, Any] = {k: np.asarray(table[k], dtype=float) for k in ("a", "c", "m", "inertia") if k in table}
+    keys = ("a", "c", "m", "inertia", "u_max")
+    fields: dict[str, Any] = {k: np.asarray(table[k], dtype=float) for k in keys if k in table}
     n = len(fields["a"]) if "a" in fields else (base.n if base else None)
     for key in ("q_min", "q_max"):
         value = _angles(where, table, key, n)

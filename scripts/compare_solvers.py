@@ -1,0 +1,106 @@
+"""The default tasks solved by every backend, side by side in one run: one answer to one problem?
+
+    python scripts/compare_solvers.py [--tasks T1 T2 T3 T4] [--solvers ipopt ipm casadi] [--N 100]
+        [--scheme A,F+C,2S] [--out results/compare_solvers.json] [--md results/compare_solvers.md]
+
+Per task and solver: the status, iterations, solve time and objective of each stage, the peak
+loads (``Solution.peaks``) and the four objective terms; per task and pair of solvers: the
+relative objective difference and the largest joint-angle difference (rad) over the trajectory,
+and whether the pair reaches the same optimum (objectives within ``--obj-tol`` relative, joint
+trajectories within ``--q-tol`` rad); the ratio of the IPM's 2S solve time to the CasADi backend's.
+Run it with and without ``OMP_NUM_THREADS=1``: the environment is recorded with the results.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import os
+import pathlib
+import platform
+import time
+
+import numpy as np
+
+import jaxhumanoid as jh
+
+
+def run_one(task: str, solver: str, scheme: str, N: int) -> tuple[dict, np.ndarray]:
+    t0 = time.perf_counter()
+    sol = jh.solve(task, scheme=scheme, solver=solver, N=N)
+    rec = sol.report()
+    rec["wall_s"] = time.perf_counter() - t0
+    return rec, np.asarray(sol.q)
+
+
+def agreement(a: tuple[dict, np.ndarray], b: tuple[dict, np.ndarray], obj_tol: float, q_tol: float) -> dict:
+    """Relative objective difference, max |q_a - q_b| (rad) and whether both solves succeeded at one optimum."""
+    (ra, qa), (rb, qb) = a, b
+    d_obj = abs(ra["objective"] - rb["objective"]) / max(abs(ra["objective"]), 1e-300)
+    d_q = float(np.max(np.abs(qa - qb)))
+    same = bool(ra["success"] and rb["success"] and d_obj <= obj_tol and d_q <= q_tol)
+    return {"d_objective_rel": d_obj, "d_q_max_rad": d_q, "same_optimum": same}
+
+
+def table(results: dict) -> str:
+    solvers = results["solvers"]
+    head = "| task | " + " | ".join(f"{s}: iterations, solve s, objective" for s in solvers) + " | same optimum |"
+    lines = [head, "|" + "---|" * (len(solvers) + 2)]
+    for task, r in results["tasks"].items():
+        cells = []
+        for s in solvers:
+            rec = r["solves"][s]
+            its = "+".join(str(i) for i in rec["iterations"])
+            ok = "" if rec["success"] else f" **{rec['status']}**"
+            cells.append(f"{its}, {sum(rec['solve_time_s']):.1f}, {rec['objective']:.6g}{ok}")
+        pairs = ", ".join(
+            f"{k}: {'yes' if v['same_optimum'] else 'no'} ({v['d_objective_rel']:.0e}, {v['d_q_max_rad']:.0e} rad)"
+            for k, v in r["pairs"].items()
+        )
+        lines.append(f"| {task} | " + " | ".join(cells) + f" | {pairs} |")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--tasks", nargs="*", default=["T1", "T2", "T3", "T4"])
+    ap.add_argument("--solvers", nargs="*", default=["ipopt", "ipm", "casadi"])
+    ap.add_argument("--scheme", default="A,F+C,2S")
+    ap.add_argument("--N", type=int, default=100)
+    ap.add_argument("--obj-tol", type=float, default=1e-6)
+    ap.add_argument("--q-tol", type=float, default=1e-4)
+    ap.add_argument("--out", default="results/compare_solvers.json")
+    ap.add_argument("--md", default=None)
+    args = ap.parse_args()
+    results: dict = {
+        "scheme": args.scheme,
+        "N": args.N,
+        "solvers": args.solvers,
+        "environment": {"OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS"), "machine": platform.machine()},
+        "tasks": {},
+    }
+    for task in args.tasks:
+        solves = {s: run_one(task, s, args.scheme, args.N) for s in args.solvers}
+        pairs = {
+            f"{a}-{b}": agreement(solves[a], solves[b], args.obj_tol, args.q_tol)
+            for a, b in itertools.combinations(args.solvers, 2)
+        }
+        entry: dict = {"solves": {s: rec for s, (rec, _) in solves.items()}, "pairs": pairs}
+        if "ipm" in solves and "casadi" in solves:
+            entry["ipm_over_casadi_solve_time"] = sum(solves["ipm"][0]["solve_time_s"]) / sum(
+                solves["casadi"][0]["solve_time_s"]
+            )
+        results["tasks"][task] = entry
+        print(f"{task}: " + ", ".join(f"{k} {'same' if v['same_optimum'] else 'DIFFERENT'}" for k, v in pairs.items()))
+        out = pathlib.Path(args.out)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(results, indent=2) + "\n")
+    md = table(results)
+    print(md)
+    if args.md:
+        pathlib.Path(args.md).write_text(md + "\n")
+
+
+if __name__ == "__main__":
+    main()
