@@ -15,8 +15,10 @@ not depend on how many others are drawn or in which order they run. Per problem:
 * N drawn from a small set (each distinct N costs one compilation per worker), T uniform in [4, 6] s;
 * the task's start posture moved by a uniform +-2 deg per joint, then projected onto the nearest
   static equilibrium that keeps the foot steady (5) with margin under the drawn law
-  (``find_equilibrium`` within the task's joint ranges). When none is found, every value except N
-  is drawn again; the redraws are counted.
+  (``find_equilibrium`` within the task's joint ranges). When none is found, or the nearest one
+  lies more than ``--max-move`` (default 0.1 rad) from the moved posture (then it is another
+  posture, not a perturbed start of the family: e.g. a lying start with the hip lifted off the
+  ground), every value except N is drawn again; the redraws are counted by reason.
 
 Each problem is solved by every backend; a record per solve keeps the perturbation, the per-stage
 statistics, the objective and its terms, peak torques and contact normal force, and the wall time.
@@ -56,6 +58,7 @@ CONTACT_SPREAD = 0.5  # each contact parameter scaled by a factor uniform in [1 
 T_RANGE = (4.0, 6.0)  # s
 START_SPREAD_DEG = 2.0  # per-joint uniform offset of the start posture before the projection
 MAX_REDRAWS = 50
+MAX_MOVE = 0.1  # rad: the farthest the projection may move the perturbed start posture (max norm)
 WEIGHT_NAMES = ("w_u", "w_qd", "w_dqd", "w_du")
 CONTACT_NAMES = ("kappa", "f0", "xhat", "mu")
 OBJ_RTOL = 1e-6
@@ -72,7 +75,8 @@ class Perturbation:
     weight_factors / contact_factors: the drawn factors by name; weights: the (n + 3,) weights of
     (7) they give (w_u1..w_un, w_qd, w_dqd, w_du); contact: the drawn law by name; start_offset:
     the drawn joint offsets (rad, before the projection); start: the projected start posture (rad);
-    start_moved: max |start - (task start + offset)| (rad); redraws: rejected draws before this one.
+    start_moved: max |start - (task start + offset)| (rad); redraws: rejected draws before this
+    one, ``rejected`` the same by reason (no equilibrium found, equilibrium too far).
     """
 
     family: str
@@ -88,6 +92,7 @@ class Perturbation:
     start: tuple[float, ...]
     start_moved: float
     redraws: int
+    rejected: dict[str, int]
 
     def task(self, base: Task) -> Task:
         """The family's task with the projected start posture."""
@@ -122,9 +127,11 @@ def sample_problem(
     n_set: Sequence[int] = N_SET,
     body: PlanarChain | None = None,
     max_redraws: int = MAX_REDRAWS,
+    max_move: float = MAX_MOVE,
 ) -> Perturbation:
     """Problem ``index`` of the family ``task`` (see the module docstring). Raises RuntimeError
-    when no draw in 1 + ``max_redraws`` admits a steady-foot equilibrium near the start."""
+    when no draw in 1 + ``max_redraws`` admits a steady-foot equilibrium within ``max_move`` (rad)
+    of the moved start."""
     body = PlanarChain.humanoid() if body is None else body
     rng = np.random.default_rng([seed, family_id(task.key), index, 1])
     base_w = task.weights.as_array(task.n)
@@ -132,6 +139,7 @@ def sample_problem(
     q_min, q_max = task.joint_ranges(body)
     N = sample_N(task.key, seed, index, n_set)
     last_error = ""
+    rejected = {"no_equilibrium": 0, "moved_too_far": 0}
     for redraws in range(max_redraws + 1):
         wf = np.exp(rng.uniform(np.log(WEIGHT_RANGE[0]), np.log(WEIGHT_RANGE[1]), len(WEIGHT_NAMES)))
         cfac = rng.uniform(1.0 - CONTACT_SPREAD, 1.0 + CONTACT_SPREAD, len(CONTACT_NAMES))
@@ -143,6 +151,11 @@ def sample_problem(
             eq = find_equilibrium(body, guess, task.active, contact=ContactParams(**contact), q_min=q_min, q_max=q_max)
         except ValueError as exc:
             last_error = str(exc)
+            rejected["no_equilibrium"] += 1
+            continue
+        if eq.moved > max_move:
+            last_error = f"the nearest equilibrium lies {eq.moved:.3f} rad away"
+            rejected["moved_too_far"] += 1
             continue
         factor_per_weight = np.concatenate([np.full(task.n, wf[0]), wf[1:]])
         return Perturbation(
@@ -157,8 +170,9 @@ def sample_problem(
             T=T,
             start_offset=tuple(float(x) for x in offset),
             start=tuple(float(x) for x in eq.q),
-            start_moved=float(np.max(np.abs(eq.q - guess))),
+            start_moved=float(eq.moved),
             redraws=redraws,
+            rejected=rejected,
         )
     raise RuntimeError(
         f"{task.key} problem {index}: no steady-foot equilibrium in {max_redraws + 1} draws ({last_error})"
@@ -262,13 +276,14 @@ def solve_problem(
     N1: int | None = None,
     obj_rtol: float = OBJ_RTOL,
     q_atol: float = Q_ATOL,
+    max_move: float = MAX_MOVE,
 ) -> dict[str, Any]:
     """Problem ``index`` of ``family``: drawn, solved by every solver, compared. The job a worker
     runs; returns a JSON-ready dict (no trajectories)."""
     t0 = time.perf_counter()
     base = get_task(family)
     try:
-        pert = sample_problem(base, seed, index, n_set)
+        pert = sample_problem(base, seed, index, n_set, max_move=max_move)
     except Exception as exc:  # recorded like a failed solve: the study goes on
         return {
             "family": family,
@@ -474,7 +489,14 @@ def _csv(text: str) -> list[str]:
 
 def run_study(args: argparse.Namespace) -> dict[str, Any]:
     """Draw, solve and compare every problem; rewrite ``args.out`` after each one."""
-    kw = {"solvers": args.solvers, "n_set": args.n_set, "N1": args.n1, "obj_rtol": args.obj_rtol, "q_atol": args.q_atol}
+    kw = {
+        "solvers": args.solvers,
+        "n_set": args.n_set,
+        "N1": args.n1,
+        "obj_rtol": args.obj_rtol,
+        "q_atol": args.q_atol,
+        "max_move": args.max_move,
+    }
     jobs = [(fam, i, sample_N(fam, args.seed, i, args.n_set)) for fam in args.tasks for i in range(args.per_family)]
     config = {
         "scheme": SCHEME,
@@ -486,6 +508,7 @@ def run_study(args: argparse.Namespace) -> dict[str, Any]:
         "N1": args.n1,
         "obj_rtol": args.obj_rtol,
         "q_atol": args.q_atol,
+        "max_move": args.max_move,
         "weight_range": WEIGHT_RANGE,
         "contact_spread": CONTACT_SPREAD,
         "T_range": T_RANGE,
@@ -557,6 +580,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     ap.add_argument("--workers", type=int, default=1, help="worker processes (spawned)")
     ap.add_argument("--obj-rtol", type=float, default=OBJ_RTOL, help="agreement: max relative objective difference")
     ap.add_argument("--q-atol", type=float, default=Q_ATOL, help="agreement: max |q_a - q_b| (rad)")
+    ap.add_argument(
+        "--max-move", type=float, default=MAX_MOVE, help="max move (rad) of the start by the equilibrium projection"
+    )
     ap.add_argument("--out", default="results/robustness.json")
     ap.add_argument("--md", default=None, help="also write the tables to this markdown file")
     ap.add_argument("--quiet", action="store_true", help="no progress line")
@@ -580,6 +606,8 @@ def main(argv: Sequence[str] | None = None) -> None:
         ap.error(f"--n-set: expected comma-separated integers, got {args.n_set!r}")
     if not args.n_set or min(args.n_set) < 3:
         ap.error("--n-set: expected grid sizes >= 3")
+    if not args.max_move > 0:
+        ap.error(f"--max-move: expected a positive angle (rad), got {args.max_move}")
     if args.per_family < 1 or args.workers < 1:
         ap.error("--per-family and --workers: expected at least 1")
     _report(run_study(args), args.md)

@@ -66,13 +66,19 @@ def test_samples_are_in_range_and_at_equilibrium(study, samples, family):
     assert pert.N in n_set
     assert 4.0 <= pert.T <= 6.0
     assert np.max(np.abs(pert.start_offset)) <= np.deg2rad(2.0)
-    assert pert.redraws >= 0
+    assert pert.start_moved <= study.MAX_MOVE
+    assert pert.redraws == sum(pert.rejected.values()) >= 0
 
     q = np.asarray(pert.start)
     q_min, q_max = task.joint_ranges(body)
     assert np.all(q >= q_min - 1e-9) and np.all(q <= q_max + 1e-9)
     assert margins(body, q, task.active, contact=pert.law()).ok
     assert pert.start_moved == pytest.approx(np.max(np.abs(q - (task.start + np.asarray(pert.start_offset)))))
+
+
+def test_a_projection_that_moves_the_start_too_far_is_redrawn(study):
+    with pytest.raises(RuntimeError, match="2 draws"):
+        study.sample_problem(get_task("T3"), seed=7, index=1, n_set=N_SET, max_redraws=1, max_move=1e-9)
 
 
 def test_agreement_flags_a_moved_trajectory(study):
