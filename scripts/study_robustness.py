@@ -497,6 +497,10 @@ def run_study(args: argparse.Namespace) -> dict[str, Any]:
         "q_atol": args.q_atol,
         "max_move": args.max_move,
     }
+    if args.workers > 1:
+        # Spawned workers inherit the environment at start, before they import JAX (through this
+        # module's imports): one OpenMP thread per worker.
+        os.environ["OMP_NUM_THREADS"] = "1"
     jobs = [(fam, i, sample_N(fam, args.seed, i, args.n_set)) for fam in args.tasks for i in range(args.per_family)]
     config = {
         "scheme": SCHEME,
@@ -533,9 +537,6 @@ def run_study(args: argparse.Namespace) -> dict[str, Any]:
         for fam, i, _ in sorted(jobs, key=lambda j: j[2]):  # one N after another: compiled code is reused
             finished(solve_problem(fam, i, args.seed, **kw))
     else:
-        # Spawned workers inherit the environment at start, before they import JAX (through this
-        # module's imports): one OpenMP thread per worker.
-        os.environ["OMP_NUM_THREADS"] = "1"
         ctx = multiprocessing.get_context("spawn")
         # One single-process pool per queue: a queue's jobs (grouped by N) stay in one process,
         # which keeps its compiled NLPs, while results still come back one problem at a time.

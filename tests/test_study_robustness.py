@@ -173,3 +173,14 @@ def test_one_tiny_problem_end_to_end(study):
     assert not record["warnings"]  # the projected start keeps the foot steady: solve does not move it
     assert problem["agreement"]["agrees"]
     json.dumps(problem)
+
+
+def test_workers_get_one_grid_size_each_where_possible(study):
+    jobs = [("T1", 0, 50), ("T1", 1, 100), ("T2", 0, 50), ("T2", 1, 50)]
+    assert study.plan_workers(jobs, 1) == [[("T1", 0, 50), ("T2", 0, 50), ("T2", 1, 50), ("T1", 1, 100)]]
+    assert sorted([j[2] for j in q] for q in study.plan_workers(jobs, 2)) == [[50, 50, 50], [100]]
+    for workers in (2, 3, 4, 8):
+        queues = study.plan_workers(jobs, workers)
+        assert len(queues) == min(workers, len(jobs))
+        assert sorted(j for q in queues for j in q) == sorted(jobs)
+        assert all(len({j[2] for j in q}) == 1 for q in queues)
