@@ -2,6 +2,7 @@
 
     OMP_NUM_THREADS=1 python scripts/study_robustness.py [--per-family 40] [--tasks T1,T2,T3,T4]
         [--solvers ipopt,ipm,casadi] [--n-set 50,75,100,125,150] [--seed 0] [--workers 1]
+        [--n1 N1] [--max-move 0.1] [--obj-rtol 1e-6] [--q-atol 1e-4]
         [--out results/robustness.json] [--md docs/robustness.md] [--quiet]
     python scripts/study_robustness.py --summarise results/robustness.json [--md docs/robustness.md]
 
