@@ -38,7 +38,7 @@ from jaxhumanoid.model.params import DEG, HUMANOID_STRENGTH, PlanarChain
 
 STANDING = np.array([93.0 * DEG, 0.0, 0.0, -np.pi, -12.0 * DEG])
 PRONE = np.array([3.277316, -0.256628, -0.299796, -4.512321, -1.369876])
-SUPINE = np.array([0.703325, -1.776775, 1.397986, -5.934128, -2.094397])
+SUPINE = np.array([0.703314, -1.776783, 1.39798, -5.93413, -2.094397])
 
 GOAL_TOLERANCE = 0.05  # rad: the goal posture is "slightly relaxed by bound constraints" (Sec. II-G)
 CONTACT_FORCE_LIMIT = 1.0e4  # N: box on augmented contact-force variables
