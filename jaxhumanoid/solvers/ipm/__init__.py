@@ -4,8 +4,8 @@
 ``make_ipm(nlp, options)`` gives the pure, jit- and vmap-able core. The method is assembled from
 parts, each a module of pure functions of an explicit ``problem.Context``: ``problem`` (the
 scaled NLP), ``barrier``, ``step``, ``inertia``, ``direction``, ``filter``, ``linesearch``,
-``restoration``, ``termination``, with the typed state in ``state`` and the iteration and loop
-in ``algorithm``.
+``restoration``, ``termination``, ``mu_oracle`` (the adaptive barrier update), with the typed
+state in ``state`` and the iteration and loop in ``algorithm``.
 """
 
 from jaxhumanoid.solvers.ipm.algorithm import make_ipm

@@ -25,8 +25,8 @@ from collections.abc import Callable
 import jax.numpy as jnp
 from jax import lax
 
-from jaxhumanoid.solvers.ipm import barrier
-from jaxhumanoid.solvers.ipm.direction import Newton, search_direction
+from jaxhumanoid.solvers.ipm import barrier, mu_oracle
+from jaxhumanoid.solvers.ipm.direction import Newton, kkt_factor, newton_step, search_direction
 from jaxhumanoid.solvers.ipm.filter import filter_add, filter_reset
 from jaxhumanoid.solvers.ipm.linesearch import LineSearch, line_search
 from jaxhumanoid.solvers.ipm.options import IPMOptions, make_options
@@ -110,6 +110,7 @@ def initial_state(ctx: Context, P: Prob, x0) -> State:
         acc_it=it,
         acc_ev=ev,
         has_acc=jnp.zeros((), bool),
+        am=mu_oracle.fresh_adaptive(o, P, it) if o.mu_strategy == "adaptive" else None,
     )
 
 
@@ -146,6 +147,41 @@ def barrier_update(ctx: Context, P: Prob, S: State):
     )
     S = lax.cond(nupd > 0, lambda s_: s_._replace(gl=filter_reset(ctx.o, s_.gl)), lambda s_: s_, S)
     return S, mu, nupd
+
+
+def adaptive_barrier_and_direction(ctx: Context, P: Prob, S: State):
+    """A-3 and A-4 with ``mu_strategy="adaptive"`` (``mu_oracle``): the mode decision (the
+    monotone update (7) in the restoration phase), one factorisation, then in free mode the
+    oracle's mu and step, else the Newton step for the fixed mode's mu.
+
+    Returns (S, mu, tau, number of barrier updates, Newton)."""
+    o = ctx.o
+
+    def resto_rule(s_):
+        s2, mu_, nupd_ = barrier_update(ctx, P, s_)
+        return s2, mu_, jnp.maximum(o.tau_min, 1.0 - mu_), nupd_, jnp.zeros((), bool)
+
+    S, mu, tau, nupd, free = lax.cond(S.rs.on, resto_rule, lambda s_: mu_oracle.adaptive_mode(ctx, P, s_), S)
+    ic = kkt_factor(ctx, P, S, mu)
+    mu, nw = lax.cond(
+        free,
+        lambda: mu_oracle.oracle_direction(ctx, P, S, ic, tau),
+        lambda: (mu, newton_step(ctx, P, S, ic, mu)),
+    )
+    return S, mu, tau, nupd, nw
+
+
+def barrier_and_direction(ctx: Context, P: Prob, S: State):
+    """A-3 and A-4: the barrier update and the search direction for the new mu, with tau =
+    max(tau_min, 1 - mu) of (15) (the adaptive update chooses its own).
+
+    Returns (S, mu, tau, number of barrier updates, Newton)."""
+    if ctx.o.mu_strategy == "adaptive":
+        return adaptive_barrier_and_direction(ctx, P, S)
+    S, mu, nupd = barrier_update(ctx, P, S)
+    tau = jnp.maximum(ctx.o.tau_min, 1.0 - mu)
+    nw: Newton = search_direction(ctx, P, S, mu)
+    return S, mu, tau, nupd, nw
 
 
 def take_step(ctx: Context, P: Prob, S: State, ls: LineSearch, mu, tau):
@@ -266,9 +302,7 @@ def transition(ctx: Context, P: Prob, S: State, S_acc: State, ls: LineSearch, mu
 def iteration(ctx: Context, P: Prob, S: State):
     """One iteration of the algorithm (A-3 to A-8). Returns (State, status it sets, StepInfo)."""
     resto = S.rs.on
-    S, mu, nupd = barrier_update(ctx, P, S)
-    tau = jnp.maximum(ctx.o.tau_min, 1.0 - mu)
-    nw: Newton = search_direction(ctx, P, S, mu)
+    S, mu, tau, nupd, nw = barrier_and_direction(ctx, P, S)
     ls = line_search(ctx, P, S, nw, mu, tau, nupd)
     S_acc, a_du = take_step(ctx, P, S, ls, mu, tau)
     S_next, start_resto, resto_failed, stop_acceptable = transition(ctx, P, S, S_acc, ls, mu)

@@ -40,20 +40,27 @@ class Newton(NamedTuple):
     c: jax.Array  # (m,) constraint residual of the problem being solved
 
 
-def search_direction(ctx: Context, P: Prob, S: State, mu) -> Newton:
-    """The Newton direction at S's iterate for barrier parameter ``mu``; in the restoration phase
-    the Hessian is the constraints' part plus the proximity term eta * diag(dr)."""
-    it, ev, R = S.it, S.ev, S.rs
-    resto = R.on
-    rr = resto & ~P.free
-    Wvals = hessian(ctx, P, it.x, it.y, resto)
+def kkt_factor(ctx: Context, P: Prob, S: State, mu) -> Inertia:
+    """The matrix of (13) at S's iterate, factored with inertia correction; ``mu`` enters the
+    regularisation delta_c and, in the restoration phase, the proximity term eta * diag(dr)
+    added to the Hessian of the constraints' part."""
+    it, R = S.it, S.rs
+    rr = R.on & ~P.free
+    Wvals = hessian(ctx, P, it.x, it.y, R.on)
     sig_x, sig_s = sigmas(P, it)
     prox = prox_weight(ctx.o, R, mu)
     sig_p = jnp.where(rr, R.zp / R.p, 0.0)
     sig_n = jnp.where(rr, R.zn / R.n, 0.0)
-    ic = inertia_corrected_factor(
-        ctx, P, rr, Wvals, ev.jac, sig_x + prox, sig_s, sig_p, sig_n, S.gl.dw_last, mu, S.gl.pert
+    return inertia_corrected_factor(
+        ctx, P, rr, Wvals, S.ev.jac, sig_x + prox, sig_s, sig_p, sig_n, S.gl.dw_last, mu, S.gl.pert
     )
+
+
+def residuals(ctx: Context, P: Prob, S: State, mu):
+    """The right-hand side of (13) for barrier parameter ``mu``: the barrier gradients
+    (gx (n,), gs, gp, gn (m,)), r_x = gx + J^T y, r_s, r_p, r_n and the constraint residual c."""
+    it, ev, R = S.it, S.ev, S.rs
+    rr = R.on & ~P.free
     gx, gs = barrier_grad(P, objective_grad(ctx.o, R, ev.grad, it.x, mu), it.x, it.s, mu)
     gp, gn = pn_barrier_grad(ctx.o, R, rr, mu)
     rx = gx + jt_mult(ctx, ev.jac, it.y)
@@ -61,9 +68,26 @@ def search_direction(ctx: Context, P: Prob, S: State, mu) -> Newton:
     rp = jnp.where(rr, gp - it.y, 0.0)
     rn = jnp.where(rr, gn + it.y, 0.0)
     c = resto_resid(P, R, ev.g, it.s, R.p, R.n)
+    return gx, gs, gp, gn, rx, rs, rp, rn, c
+
+
+def newton(ic: Inertia, d: Direction, res_ratio, res) -> Newton:
+    """The Newton tuple of direction ``d`` solved with ``ic`` for the residuals ``res``."""
+    finite_step = jnp.all(jnp.isfinite(d.dx)) & jnp.all(jnp.isfinite(d.dy))
+    return Newton(ic, ic.ok & finite_step, d, res_ratio, *res)
+
+
+def newton_step(ctx: Context, P: Prob, S: State, ic: Inertia, mu) -> Newton:
+    """The Newton direction (13) for barrier parameter ``mu`` with the factored matrix ``ic``."""
+    res = residuals(ctx, P, S, mu)
+    _, _, _, _, rx, rs, rp, rn, c = res
     dx, ds, dy, dp, dn, res_ratio = solve_reduced(ctx, P, ic.A, ic.B, ic.fac, ic.invs, rx, rs, rp, rn, c)
-    finite_step = jnp.all(jnp.isfinite(dx)) & jnp.all(jnp.isfinite(dy))
-    return Newton(ic, ic.ok & finite_step, Direction(dx, ds, dy, dp, dn), res_ratio, gx, gs, gp, gn, rx, rs, rp, rn, c)
+    return newton(ic, Direction(dx, ds, dy, dp, dn), res_ratio, res)
+
+
+def search_direction(ctx: Context, P: Prob, S: State, mu) -> Newton:
+    """The Newton direction at S's iterate for barrier parameter ``mu`` (factor, then solve)."""
+    return newton_step(ctx, P, S, kkt_factor(ctx, P, S, mu), mu)
 
 
 def corrected_direction(ctx: Context, P: Prob, nw: Newton, c_soc) -> Direction:

@@ -43,6 +43,19 @@ class IPMOptions:
     kappa_mu: float = 0.2
     theta_mu: float = 1.5
     tau_min: float = 0.99
+    # adaptive barrier update (Nocedal, Waechter & Waltz 2009; ``mu_oracle``): "monotone" is the
+    # rule (7) above, "adaptive" the quality-function oracle with the obj-constr-filter safeguard
+    mu_strategy: str = "monotone"
+    mu_min: float = 1e-11
+    mu_max_fact: float = 1e3
+    sigma_max: float = 100.0
+    sigma_min: float = 1e-6
+    quality_function_max_section_steps: int = 8
+    quality_function_section_sigma_tol: float = 1e-2
+    quality_function_section_qf_tol: float = 0.0
+    adaptive_mu_monotone_init_factor: float = 0.8
+    filter_margin_fact: float = 1e-5
+    filter_max_margin: float = 1.0
     # variable and inequality bounds relaxed by this factor (IPOPT's default)
     bound_relax_factor: float = 1e-8
     # initial point (Sec. 3.6)
@@ -114,7 +127,7 @@ class IPMOptions:
         return dataclasses.replace(self, **kw)
 
 
-_NONNEG = ("bound_relax_factor",)
+_NONNEG = ("bound_relax_factor", "sigma_min")
 _POSITIVE = (
     "tol",
     "s_max",
@@ -127,6 +140,11 @@ _POSITIVE = (
     "acceptable_compl_inf_tol",
     "mu_init",
     "kappa_eps",
+    "mu_min",
+    "mu_max_fact",
+    "sigma_max",
+    "adaptive_mu_monotone_init_factor",
+    "filter_max_margin",
     "bound_push",
     "bound_frac",
     "slack_bound_push",
@@ -155,7 +173,8 @@ _POSITIVE = (
     "resto_theta_max_fact",
     "bound_mult_reset_threshold",
 )
-_OPEN_UNIT = ("kappa_mu", "tau_min", "perturb_dec_fact", "kappa_soc", "kappa_resto")
+_OPEN_UNIT = ("kappa_mu", "tau_min", "perturb_dec_fact", "kappa_soc", "kappa_resto", "filter_margin_fact")
+_UNIT_LEFT_CLOSED = ("quality_function_section_sigma_tol", "quality_function_section_qf_tol")
 _NONNEG_INT = (
     "acceptable_iter",
     "max_soc",
@@ -164,6 +183,7 @@ _NONNEG_INT = (
     "print_level",
     "degen_iters_max",
     "watchdog_shortened_iter_trigger",
+    "quality_function_max_section_steps",
 )
 
 _POS_INT = (
@@ -175,6 +195,7 @@ _POS_INT = (
     "watchdog_trial_iter_max",
 )
 SCALING_METHODS = ("gradient-based", "none")
+MU_STRATEGIES = ("monotone", "adaptive")
 
 
 def validate(o: IPMOptions) -> None:
@@ -199,6 +220,10 @@ def validate(o: IPMOptions) -> None:
         v = getattr(o, name)
         if not isinstance(v, int) or isinstance(v, bool) or v < 1:
             raise ValueError(f"IPMOptions.{name} must be an integer >= 1, got {v!r}")
+    for name in _UNIT_LEFT_CLOSED:
+        v = getattr(o, name)
+        if not isinstance(v, (int, float)) or not 0.0 <= v < 1.0:
+            raise ValueError(f"IPMOptions.{name} must lie in [0, 1), got {v!r}")
     if not 1.0 < o.theta_mu < 2.0:
         raise ValueError(f"IPMOptions.theta_mu must lie in (1, 2), got {o.theta_mu!r}")
     if not o.s_theta > 1.0:
@@ -216,6 +241,10 @@ def validate(o: IPMOptions) -> None:
         raise ValueError(
             f"IPMOptions.nlp_scaling_method must be one of {SCALING_METHODS}, got {o.nlp_scaling_method!r}"
         )
+    if o.mu_strategy not in MU_STRATEGIES:
+        raise ValueError(f"IPMOptions.mu_strategy must be one of {MU_STRATEGIES}, got {o.mu_strategy!r}")
+    if o.sigma_min >= o.sigma_max:
+        raise ValueError("IPMOptions.sigma_min must be < sigma_max")
     if o.min_hessian_perturbation >= o.max_hessian_perturbation:
         raise ValueError("IPMOptions.min_hessian_perturbation must be < max_hessian_perturbation")
     if not isinstance(o.keep_history, bool):

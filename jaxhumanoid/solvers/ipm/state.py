@@ -174,9 +174,22 @@ class Watchdog(NamedTuple):
     skip_first: jax.Array  # backtrack without trying the full step (after a watchdog reset)
 
 
+class AdaptiveMu(NamedTuple):
+    """State of the adaptive barrier update (``mu_oracle``): the mode and the filter of the
+    (f, theta) pairs of the points accepted in free mode, F = ``filter_size`` entries, +inf
+    where unused."""
+
+    free: jax.Array  # () free mode (mu from the oracle), else fixed (monotone) mode
+    mu_max: jax.Array  # () mu_max_fact times the average complementarity at the start point
+    filt_f: jax.Array  # (F,) scaled objective of the entries
+    filt_theta: jax.Array  # (F,) their constraint violation ||c||_1
+    filt_n: jax.Array  # () entries written (the ring buffer's position when no slot is free)
+
+
 class State(NamedTuple):
     """Loop state of the IPM; ``status`` holds a ``Status`` code (``Status.Running`` until a
-    termination test fires)."""
+    termination test fires). ``am`` is the adaptive barrier update's state with
+    ``mu_strategy="adaptive"`` and None (no leaves) with "monotone"."""
 
     it: Iterate
     ev: Evals
@@ -195,6 +208,7 @@ class State(NamedTuple):
     rs: Resto
     wd: Watchdog
     hist: dict  # HIST_FIELDS -> (H,) arrays, row k = iteration k
+    am: AdaptiveMu | None = None
 
 
 class StepInfo(NamedTuple):
