@@ -1,5 +1,7 @@
 """The 1S/2S strategies: stage hand-over, the stage-1 fallbacks, convergence on every task (slow)."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -14,7 +16,8 @@ def test_two_stage_converges_on_every_task(key):
     assert sol.success, [s.status for s in sol.stages]
 
 
-def test_failed_stage_one_retries_with_the_fallback_and_counts_every_run(monkeypatch):
+@pytest.mark.parametrize("solver", ["ipopt", "ipm"])
+def test_failed_stage_one_retries_with_the_fallback_and_counts_every_run(monkeypatch, solver):
     calls = []
 
     def fake_run(solver, problem, x0, options, verbose):
@@ -36,7 +39,7 @@ def test_failed_stage_one_retries_with_the_fallback_and_counts_every_run(monkeyp
         )
 
     monkeypatch.setattr(strat, "_run_solver", fake_run)
-    sol = strat.solve("T1", "A,F+C,2S", N=10, N1=5)
+    sol = strat.solve("T1", "A,F+C,2S", solver=solver, N=10, N1=5)
     assert [c[0] for c in calls] == [5, 5, 10]
     assert calls[0][1]["mu_init"] == strat.STAGE1_DEFAULTS["mu_init"] and "mu_strategy" not in calls[0][1]
     assert calls[1][1]["mu_strategy"] == "adaptive"
@@ -44,7 +47,9 @@ def test_failed_stage_one_retries_with_the_fallback_and_counts_every_run(monkeyp
     assert first.attempts == 2 and first.success and first.status == "Solve_Succeeded"
     assert first.iterations == 101 + 102 and first.solve_time_s == 2.0
     assert second.attempts == 1 and second.iterations == 103
-    # the own IPM takes no IPOPT options: no fallback, the failure is reported as it is
+    # a stage 1 that fails in every run is reported as failed, and stage 2 still runs from it
     calls.clear()
-    sol = strat.solve("T1", "A,F+C,2S", solver="ipm", N=10, N1=5)
-    assert len(calls) == 2 and sol.stages[0].status == "Infeasible_Problem_Detected" and sol.stages[0].attempts == 1
+    monkeypatch.setattr(strat, "_run_solver", lambda *a: dataclasses.replace(fake_run(*a), status="Error", success=False))
+    sol = strat.solve("T1", "A,F+C,2S", solver=solver, N=10, N1=5)
+    assert len(calls) == 3 and sol.stages[0].status == "Error" and sol.stages[0].attempts == 2
+    assert not sol.success

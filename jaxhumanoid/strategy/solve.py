@@ -39,9 +39,9 @@ STAGE1_N = 30
 # push keep the warm start instead of pushing every variable back to the middle of its bounds.
 STAGE1_DEFAULTS = {"mu_init": 1e-2}
 STAGE2_DEFAULTS = {"mu_init": 1e-3, "bound_push": 1e-6, "bound_frac": 1e-6}
-# Stage 1 can still end "infeasible" from the linear guess (e.g. T3 with perturbed weights in
-# scripts/study_iterations.py). Then IPOPT's adaptive barrier update is tried, in order, by the
-# IPOPT-based solvers only; the iterations and times of every run add up.
+# Stage 1 can still end "infeasible" from the linear guess (scripts/study_robustness.py). Then
+# IPOPT's adaptive barrier update (the IPM has its own) is tried, in order, by every solver; the
+# iterations and times of every run add up.
 STAGE1_FALLBACKS = ({"mu_strategy": "adaptive"},)
 
 
@@ -161,7 +161,7 @@ def make_solution(problem: Problem, x, stages, solver: str, warm_start=None) -> 
 
 def _stage_one(task, scheme, solver, final: Problem, N1: int, options, contact_stage1, verbose):
     """Stage 1 of 2S: the pseudo-static problem (8) on the coarse grid, from the start posture
-    re-seated for the stage-1 contact law, with the IPOPT fallbacks. Returns (stats, Z1)."""
+    re-seated for the stage-1 contact law, with the stage-1 fallbacks. Returns (stats, Z1)."""
     law = ContactParams.relaxed() if contact_stage1 is None else contact_stage1
     q_start1, _ = reseat_for_contact(final.p, final.p.q_start, final.layout.active, law)
     t0 = time.perf_counter()
@@ -178,9 +178,8 @@ def _stage_one(task, scheme, solver, final: Problem, N1: int, options, contact_s
         foot=final.p.foot,
     )
     setup_first = time.perf_counter() - t0
-    fallbacks = STAGE1_FALLBACKS if solver in ("ipopt", "casadi") else ()
     attempts = [_run_solver(solver, first, first.bounds.x0, options, verbose)]
-    for extra in fallbacks:
+    for extra in STAGE1_FALLBACKS:
         if attempts[-1].success:
             break
         attempts.append(_run_solver(solver, first, first.bounds.x0, {**options, **extra}, verbose))
