@@ -5,16 +5,15 @@
 
 Per task and solver: the status, iterations, solve time and objective of each stage, the peak
 loads (``Solution.peaks``) and the four objective terms; per task and pair of solvers: the
-relative objective difference and the largest joint-angle difference (rad) over the trajectory,
-and whether the pair reaches the same optimum (objectives within ``--obj-tol`` relative, joint
-trajectories within ``--q-tol`` rad); the ratio of the IPM's 2S solve time to the CasADi backend's.
+relative objective difference and the largest joint-angle difference (rad) over the trajectory
+(``study_robustness.agreement``: the same optimum when objectives are within ``--obj-tol``
+relative and joint trajectories within ``--q-tol`` rad); the ratio of the IPM's 2S solve time to the CasADi backend's.
 Run it with and without ``OMP_NUM_THREADS=1``: the environment is recorded with the results.
 """
 
 from __future__ import annotations
 
 import argparse
-import itertools
 import json
 import os
 import pathlib
@@ -22,25 +21,17 @@ import platform
 import time
 
 import numpy as np
+from study_robustness import Outcome, agreement
 
 import jaxhumanoid as jh
 
 
-def run_one(task: str, solver: str, scheme: str, N: int) -> tuple[dict, np.ndarray]:
+def run_one(task: str, solver: str, scheme: str, N: int) -> tuple[dict, Outcome]:
     t0 = time.perf_counter()
     sol = jh.solve(task, scheme=scheme, solver=solver, N=N)
     rec = sol.report()
     rec["wall_s"] = time.perf_counter() - t0
-    return rec, np.asarray(sol.q)
-
-
-def agreement(a: tuple[dict, np.ndarray], b: tuple[dict, np.ndarray], obj_tol: float, q_tol: float) -> dict:
-    """Relative objective difference, max |q_a - q_b| (rad) and whether both solves succeeded at one optimum."""
-    (ra, qa), (rb, qb) = a, b
-    d_obj = abs(ra["objective"] - rb["objective"]) / max(abs(ra["objective"]), 1e-300)
-    d_q = float(np.max(np.abs(qa - qb)))
-    same = bool(ra["success"] and rb["success"] and d_obj <= obj_tol and d_q <= q_tol)
-    return {"d_objective_rel": d_obj, "d_q_max_rad": d_q, "same_optimum": same}
+    return rec, Outcome(bool(sol.success), float(sol.objective), np.asarray(sol.q))
 
 
 def table(results: dict) -> str:
@@ -55,8 +46,8 @@ def table(results: dict) -> str:
             ok = "" if rec["success"] else f" **{rec['status']}**"
             cells.append(f"{its}, {sum(rec['solve_time_s']):.1f}, {rec['objective']:.6g}{ok}")
         pairs = ", ".join(
-            f"{k}: {'yes' if v['same_optimum'] else 'no'} ({v['d_objective_rel']:.0e}, {v['d_q_max_rad']:.0e} rad)"
-            for k, v in r["pairs"].items()
+            f"{p['a']}-{p['b']}: {'yes' if p['within'] else 'no'} ({p['rel_objective']:.0e}, {p['max_dq']:.0e} rad)"
+            for p in r["agreement"]["pairs"]
         )
         lines.append(f"| {task} | " + " | ".join(cells) + f" | {pairs} |")
     return "\n".join(lines)
@@ -82,17 +73,14 @@ def main() -> None:
     }
     for task in args.tasks:
         solves = {s: run_one(task, s, args.scheme, args.N) for s in args.solvers}
-        pairs = {
-            f"{a}-{b}": agreement(solves[a], solves[b], args.obj_tol, args.q_tol)
-            for a, b in itertools.combinations(args.solvers, 2)
-        }
-        entry: dict = {"solves": {s: rec for s, (rec, _) in solves.items()}, "pairs": pairs}
+        agree = agreement({s: out for s, (_, out) in solves.items()}, args.obj_tol, args.q_tol)
+        entry: dict = {"solves": {s: rec for s, (rec, _) in solves.items()}, "agreement": agree}
         if "ipm" in solves and "casadi" in solves:
             entry["ipm_over_casadi_solve_time"] = sum(solves["ipm"][0]["solve_time_s"]) / sum(
                 solves["casadi"][0]["solve_time_s"]
             )
         results["tasks"][task] = entry
-        print(f"{task}: " + ", ".join(f"{k} {'same' if v['same_optimum'] else 'DIFFERENT'}" for k, v in pairs.items()))
+        print(f"{task}: all solvers at one optimum: {agree['agrees']}", flush=True)
         out = pathlib.Path(args.out)
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(json.dumps(results, indent=2) + "\n")

@@ -49,7 +49,8 @@ def test_failed_stage_one_retries_with_the_fallback_and_counts_every_run(monkeyp
     assert second.attempts == 1 and second.iterations == 103
     # a stage 1 that fails in every run is reported as failed, and stage 2 still runs from it
     calls.clear()
-    monkeypatch.setattr(strat, "_run_solver", lambda *a: dataclasses.replace(fake_run(*a), status="Error", success=False))
+    failing = lambda *a: dataclasses.replace(fake_run(*a), status="Error", success=False)  # noqa: E731
+    monkeypatch.setattr(strat, "_run_solver", failing)
     sol = strat.solve("T1", "A,F+C,2S", solver=solver, N=10, N1=5)
     assert len(calls) == 3 and sol.stages[0].status == "Error" and sol.stages[0].attempts == 2
     assert not sol.success

@@ -81,9 +81,7 @@ def start_violation(problem: Problem, x0) -> float:
     return constraint_violation(np.asarray(g), x0, b.gl, b.gu, b.xl, b.xu)
 
 
-def _stage_stats(
-    name: str, problem: Problem, attempts: list[NLPResult], setup_time_s: float, x0
-) -> StageStats:
+def _stage_stats(name: str, problem: Problem, attempts: list[NLPResult], setup_time_s: float, x0) -> StageStats:
     """Statistics of one stage from its solver runs (more than one when a fallback was needed) from
     the start point x0: status and objective of the last run, iterations and times summed over all
     of them. ``compile_time_s`` counts the one-off work: problem set-up (pattern detection,

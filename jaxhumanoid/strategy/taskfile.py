@@ -41,7 +41,10 @@ from jaxhumanoid.ocp.tasks import Task, Weights
 PRESETS = {"humanoid": PlanarChain.humanoid}
 TABLES = {
     "name": None,
-    "body": {"preset", "a", "c", "m", "inertia", "g", "names", "q_min", "q_max", "q_min_deg", "q_max_deg", "u_max", "scale_m"},
+    "body": {
+        *("preset", "a", "c", "m", "inertia", "g", "names"),
+        *("q_min", "q_max", "q_min_deg", "q_max_deg", "u_max", "scale_m"),
+    },
     "foot": {"a0f", "a0b", "ankle_height"},
     "contact": {"kappa", "f0", "xhat", "mu"},
     "contact_stage1": {"kappa", "f0", "xhat", "mu"},
