@@ -21,7 +21,7 @@ def test_failed_stage_one_retries_with_the_fallback_and_counts_every_run(monkeyp
     calls = []
 
     def fake_run(solver, problem, x0, options, verbose):
-        calls.append((problem.layout.N, dict(options)))
+        calls.append((problem.layout.N, dict(options), np.array(x0)))
         fail = problem.layout.pseudo_static and len(calls) == 1
         n, m = problem.nlp.n, problem.nlp.m
         return NLPResult(
@@ -52,5 +52,12 @@ def test_failed_stage_one_retries_with_the_fallback_and_counts_every_run(monkeyp
     failing = lambda *a: dataclasses.replace(fake_run(*a), status="Error", success=False)  # noqa: E731
     monkeypatch.setattr(strat, "_run_solver", failing)
     sol = strat.solve("T1", "A,F+C,2S", solver=solver, N=10, N1=5)
-    assert len(calls) == 3 and sol.stages[0].status == "Error" and sol.stages[0].attempts == 2
+    runs = 1 + len(strat.STAGE1_FALLBACKS)
+    assert len(calls) == runs + 1 and sol.stages[0].status == "Error" and sol.stages[0].attempts == runs
     assert not sol.success
+    # the restarts move the linear guess by about STAGE1_RESTART_SIGMA, the same way for one seed
+    x = [c[2] for c in calls[:runs]]
+    np.testing.assert_array_equal(x[0], x[1])
+    assert 0 < np.max(np.abs(x[2] - x[0])) < 10 * strat.STAGE1_RESTART_SIGMA
+    np.testing.assert_array_equal(x[2], x[3])
+    assert np.max(np.abs(x[4] - x[2])) > 0

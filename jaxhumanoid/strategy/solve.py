@@ -39,10 +39,19 @@ STAGE1_N = 30
 # push keep the warm start instead of pushing every variable back to the middle of its bounds.
 STAGE1_DEFAULTS = {"mu_init": 1e-2}
 STAGE2_DEFAULTS = {"mu_init": 1e-3, "bound_push": 1e-6, "bound_frac": 1e-6}
-# Stage 1 can still end "infeasible" from the linear guess (scripts/study_robustness.py). Then
-# IPOPT's adaptive barrier update (the IPM has its own) is tried, in order, by every solver; the
+# Stage 1 can still end "infeasible" from the linear guess: its landscape is chaotic, and starts
+# 1e-4 apart end in different optima or fail (scripts/study_stage1.py). Each failed run is followed
+# by the next entry, in order, by every solver: (options, seed), where a seed moves every entry of
+# the linear guess by STAGE1_RESTART_SIGMA times a standard normal draw of that fixed seed. The
 # iterations and times of every run add up.
-STAGE1_FALLBACKS = ({"mu_strategy": "adaptive"},)
+STAGE1_RESTART_SIGMA = 1e-4
+STAGE1_FALLBACKS: tuple[tuple[dict, int | None], ...] = (
+    ({"mu_strategy": "adaptive"}, None),
+    ({}, 1),
+    ({"mu_strategy": "adaptive"}, 1),
+    ({}, 2),
+    ({"mu_strategy": "adaptive"}, 2),
+)
 
 
 def _run_solver(solver: str, problem: Problem, x0, options, verbose) -> NLPResult:
@@ -157,6 +166,16 @@ def make_solution(problem: Problem, x, stages, solver: str, warm_start=None) -> 
     )
 
 
+def restart_point(problem: Problem, seed: int | None) -> np.ndarray:
+    """The problem's initial guess (n,), or with ``seed`` every entry moved by
+    ``STAGE1_RESTART_SIGMA`` times a standard normal draw of that seed (clipped to the bounds)."""
+    b = problem.bounds
+    if seed is None:
+        return b.x0
+    noise = np.random.default_rng(seed).standard_normal(b.x0.size)
+    return np.clip(b.x0 + STAGE1_RESTART_SIGMA * noise, b.xl, b.xu)
+
+
 def _stage_one(task, scheme, solver, final: Problem, N1: int, options, contact_stage1, verbose):
     """Stage 1 of 2S: the pseudo-static problem (8) on the coarse grid, from the start posture
     re-seated for the stage-1 contact law, with the stage-1 fallbacks. Returns (stats, Z1)."""
@@ -177,10 +196,10 @@ def _stage_one(task, scheme, solver, final: Problem, N1: int, options, contact_s
     )
     setup_first = time.perf_counter() - t0
     attempts = [_run_solver(solver, first, first.bounds.x0, options, verbose)]
-    for extra in STAGE1_FALLBACKS:
+    for extra, seed in STAGE1_FALLBACKS:
         if attempts[-1].success:
             break
-        attempts.append(_run_solver(solver, first, first.bounds.x0, {**options, **extra}, verbose))
+        attempts.append(_run_solver(solver, first, restart_point(first, seed), {**options, **extra}, verbose))
     stats = _stage_stats("stage 1 (pseudo-static)", first, attempts, setup_first, first.bounds.x0)
     return stats, first.full(attempts[-1].x)
 
