@@ -7,7 +7,10 @@ import numpy as np
 import pytest
 
 import jaxhumanoid as jh
+from jaxhumanoid.model.params import DEG, HUMANOID_RANGES, HUMANOID_STRENGTH
+from jaxhumanoid.ocp.tasks import effort_weights
 from jaxhumanoid.outputs.cli import main
+from jaxhumanoid.strategy.posture import margins
 
 EXAMPLES = pathlib.Path(__file__).resolve().parents[1] / "examples"
 
@@ -119,3 +122,15 @@ def test_the_example_task_files_pose_the_packaged_tasks(key):
     np.testing.assert_allclose(tf.task.goal, task.goal, atol=1e-12)
     assert tf.task.active == task.active
     np.testing.assert_allclose(tf.task.weights.as_array(5), task.weights.as_array(5), rtol=1e-15)
+
+
+@pytest.mark.parametrize("key", ["T1", "T2", "T3", "T4"])
+def test_the_human_task_files_pose_equilibria_within_adult_ranges_and_strength(key):
+    tf = jh.load_task_file(EXAMPLES / "human" / f"{key}.toml")
+    body, task = tf.model, tf.task
+    np.testing.assert_array_equal(body.u_max, HUMANOID_STRENGTH)
+    np.testing.assert_allclose(body.q_min, HUMANOID_RANGES[0] * DEG, atol=1e-15)
+    assert task.weights.w_u == effort_weights(body.u_max)
+    for q in (task.start, task.goal):
+        assert np.all(q >= body.q_min) and np.all(q <= body.q_max)
+        assert margins(body, q, task.active).ok

@@ -34,29 +34,29 @@ def test_values_and_derivatives_agree(task, scheme, pseudo):
     assert all(r.tol == 1e-10 for r in rows if "pattern" not in r.quantity)
 
 
-def _stage1_problem(N, task="T1"):
+def _stage1_problem(N):
     relaxed = ContactParams.relaxed()
-    nominal = build_problem(task, "A,F+C,1S", N=N)
+    nominal = build_problem("T1", "A,F+C,1S", N=N)
     q1, _ = reseat_for_contact(nominal.p, nominal.p.q_start, nominal.layout.active, relaxed)
-    return build_problem(task, "A,F+C,1S", N=N, pseudo_static=True, contact=relaxed, q_start=q1)
+    return build_problem("T1", "A,F+C,1S", N=N, pseudo_static=True, contact=relaxed, q_start=q1)
 
 
 def test_casadi_solve_matches_ipopt():
-    # T2's stage 1 on N = 6 intervals: both IPOPT builds (cyipopt's and CasADi's differ in IPOPT and
-    # MUMPS versions) follow one path over 100+ iterations to the same point, a local minimiser of
-    # the infeasibility (a grid this coarse cannot carry the motion). On longer paths they part
-    # after rounding-level differences, which compares the two IPOPT builds rather than the NLPs.
-    problem = _stage1_problem(6, "T2")
+    # N = 6: both IPOPT builds (cyipopt's and CasADi's differ in IPOPT/MUMPS versions) take the same
+    # 38 iterations. At N = 10 the long (100+ iteration) paths part after rounding-level differences
+    # and end at different points, which compares the two IPOPT builds rather than the NLPs.
+    problem = _stage1_problem(6)
     opts = {"tol": 1e-10}
     ours = solve_ipopt(problem.nlp, problem.p, problem.bounds, x0=problem.bounds.x0, options=opts)
     ref = solve_casadi(problem, x0=problem.bounds.x0, options=opts)
-    assert ref.status == ours.status, (ref.status, ours.status)
+    assert ref.success and ours.success, (ref.status, ours.status)
+    assert ref.status == "Solve_Succeeded"
     assert ref.iterations > 0 and ref.solve_time_s > 0 and ref.compile_time_s > 0
-    assert abs(ref.max_constraint_violation - ours.max_constraint_violation) <= 1e-6
+    assert ref.max_constraint_violation < 1e-6  # IPOPT relaxes bounds by 1e-8 relative (forces ~1e3 N)
     assert np.max(np.abs(ref.x - ours.x)) <= 1e-6
     assert abs(ref.objective - ours.objective) <= 1e-8 * max(1.0, abs(ours.objective))
     assert np.max(np.abs(ref.lam_g - ours.lam_g)) <= 1e-4 * max(1.0, np.max(np.abs(ours.lam_g)))
-    assert ref.history["objective"].size >= ref.iterations + 1  # restoration iterations are logged too
+    assert ref.history["objective"].size == ref.iterations + 1
 
 
 def test_equilibrium_torques_match_fixed_entries():

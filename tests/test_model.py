@@ -13,7 +13,15 @@ from jaxhumanoid.model import contact as ct
 from jaxhumanoid.model import dynamics as dyn
 from jaxhumanoid.model import foot as ft
 from jaxhumanoid.model import kinematics as kin
-from jaxhumanoid.model.params import ContactParams, FootParams, PlanarChain
+from jaxhumanoid.model.params import (
+    DEG,
+    HUMANOID_RANGES,
+    HUMANOID_STRENGTH,
+    TORQUE_LIMIT,
+    ContactParams,
+    FootParams,
+    PlanarChain,
+)
 
 MODEL = PlanarChain.humanoid()
 FOOT = FootParams.paper()
@@ -295,8 +303,11 @@ def test_humanoid_is_table_one_with_named_joints_and_ranges():
     # the names are static: not a leaf, part of the tree structure
     leaves = jax.tree_util.tree_leaves(MODEL)
     assert all(isinstance(leaf, np.ndarray) for leaf in leaves) and len(leaves) == 8
-    # human strength, weaker in the arms than in the legs
-    assert MODEL.u_max.shape == (5,) and np.all(MODEL.u_max[3:] < MODEL.u_max[:3].min())
+    assert MODEL.u_max.shape == (5,) and np.all(MODEL.u_max == TORQUE_LIMIT)
+    # adult strengths: weaker in the arms than in the legs; adult ranges inside Table I's
+    assert np.all(HUMANOID_STRENGTH[3:] < HUMANOID_STRENGTH[:3].min())
+    lo, hi = (r * DEG for r in HUMANOID_RANGES)
+    assert np.all(lo >= MODEL.q_min - 1e-12) and np.all(hi <= MODEL.q_max + 1e-12) and np.all(lo < hi)
     with pytest.raises(ValueError, match=r"PlanarChain\.u_max"):
         dataclasses.replace(MODEL, u_max=np.array([300.0, 500.0, 400.0, 160.0, 0.0]))
     heavier = dataclasses.replace(MODEL, m=2 * MODEL.m)

@@ -18,7 +18,10 @@ from jaxhumanoid.pytree import pytree_dataclass, static_field
 HUMANOID_JOINTS = ("knee", "hip", "shoulder", "elbow", "hand")
 
 DEG = np.pi / 180.0
-# Joint strengths of the humanoid (N m) at the joints of u_1..u_5: ankle, knee, hip, shoulder, elbow.
+# Adult ranges of motion of the humanoid's relative angles (deg, docs/modelling.md): q_1 (the lower
+# leg, wide because the foot is fixed), knee, hip, shoulder (-180 = hanging arm), elbow.
+HUMANOID_RANGES = (np.array([0.0, -150.0, -30.0, -360.0, -150.0]), np.array([210.0, 5.0, 140.0, -120.0, 5.0]))
+# Strengths (N m, both sides together) at the joints of u_1..u_5: ankle, knee, hip, shoulder, elbow.
 HUMANOID_STRENGTH = np.array([300.0, 500.0, 400.0, 160.0, 150.0])
 TORQUE_LIMIT = 1000.0  # N m: the torque box of a chain that gives no strengths (far above any cost optimum)
 
@@ -123,19 +126,11 @@ class PlanarChain:
     def humanoid(cls) -> PlanarChain:
         """Table I: adult man of 73 kg and 1.74 m (adapted by the paper from its ref. [14]).
 
-        The planar model lumps both legs and both arms into one, so its joints carry the strength
-        of both sides. Joint ranges (relative angles, docs/modelling.md gives the sources):
-
-        * q_1, the absolute angle of the lower leg: [0, 210 deg]. The foot is fixed to the ground,
-          so lying face down or on the back is only possible with the lower leg flat on the ground,
-          far outside an ankle's own range (about 20 deg of dorsiflexion, 50 of plantarflexion).
-        * knee [-150, 5] deg (150 of flexion), hip [-30, 140] deg (140 of flexion, 30 of
-          extension), shoulder [-360, -120] deg (the hanging arm is -180: 180 of flexion, 60 of
-          extension), elbow [-150, 5] deg (150 of flexion): adult ranges of motion.
-
-        Strengths ``u_max`` (N m, both sides together): ankle 300, knee 500, hip 400, shoulder 160,
-        elbow 150, i.e. twice the maximal isometric torques of one side of a healthy adult man in
-        the stronger direction, rounded.
+        Joint ranges (rad): q_1 is the absolute angle of the lower leg; the shoulder range spans
+        the hanging arm (-180 deg), the forward-raised arm of the prone posture and the overhead
+        arm of the supine posture (-385 deg, i.e. 205 deg of flexion). Torques are boxed at
+        ``TORQUE_LIMIT``. ``HUMANOID_RANGES`` and ``HUMANOID_STRENGTH`` give adult ranges of motion
+        and strengths instead (``examples/human/``).
         """
         return cls(
             a=np.array([0.473, 0.422, 0.532, 0.282, 0.355]),
@@ -144,9 +139,8 @@ class PlanarChain:
             inertia=np.array([0.0855, 0.399, 1.92, 0.0227, 0.0434]),
             g=9.81,
             names=HUMANOID_JOINTS,
-            q_min=np.array([0.0, -150.0, -30.0, -360.0, -150.0]) * DEG,
-            q_max=np.array([210.0, 5.0, 140.0, -120.0, 5.0]) * DEG,
-            u_max=HUMANOID_STRENGTH.copy(),
+            q_min=np.array([0.0, -165.0, -45.0, -420.0, -160.0]) * DEG,
+            q_max=np.array([210.0, 5.0, 160.0, -100.0, 5.0]) * DEG,
         )
 
     @property

@@ -1,10 +1,10 @@
 """Tasks: start and goal postures of a planar chain, and the paper's benchmark tasks T1-T4 (Sec. III-B).
 
 Every number the paper leaves open for T1-T4 lives here: reference postures, goal tolerance and
-the cost weights of (7), chosen per task as the paper does ("from task to task, with the goal of
-obtaining human-like behaviors and well-balanced contributions by each cost term"). The joint
-ranges and strengths belong to the body (``PlanarChain.humanoid``); a task may narrow or widen
-the ranges with its own.
+the cost weights of (7). The joint ranges and strengths belong to the body
+(``PlanarChain.q_min``/``q_max``/``u_max``); a task may narrow or widen the ranges with its own.
+``examples/human/`` poses the same four tasks for a body with adult ranges of motion and
+strengths, with weights per task (``effort_weights``; docs/modelling.md).
 
 Postures of the humanoid (relative angles q, rad; conventions in ``jaxhumanoid.model``):
 
@@ -12,20 +12,16 @@ Postures of the humanoid (relative angles q, rad; conventions in ``jaxhumanoid.m
   arms hanging with the elbows slightly bent.
 * prone ("sphinx on the knees"): face down, knee, elbow and hand on the ground, forearms flat
   forward, elbows under the shoulders, hips 5 cm and shoulders 27 cm above the ground.
-* supine: on the back with the knees up and the foot flat, hip on the ground, trunk raised 19 deg,
-  hands on the ground beside the head (160 deg of shoulder flexion, 120 of elbow flexion).
+* supine: on the back with the knees up and the foot flat, hip on the ground, trunk raised 14 deg,
+  arms stretched overhead with the hands on the ground behind the head.
 
-Each lying posture is a static equilibrium (``strategy.posture.find_equilibrium``) that satisfies
-the steady-foot constraints (5) with margin under the nominal contact law: foot load f_n0 >=
-0.1 M g and the centre of pressure u_1/f_n0 >= 2 cm inside the sole. No lying posture can do so
-under the nominal and the relaxed laws at once (the relaxed law changes the load shared between
-the contacts and the foot by hundreds of newtons); the two-stage strategy therefore re-seats the
-start posture by millimetres for stage 1 (``strategy.posture.reseat_for_contact``).
-
-Weights: the torque term of (7) is an effort, sum_j (u_j / u_max_j)^2 scaled by ``EFFORT_SCALE``
-(``effort_weights``), so that a weak joint pays as much for a given fraction of its strength as a
-strong one. With the velocity, acceleration and torque-rate weights below, the four terms of (7)
-stay within 4x of each other at the optimum of every task (docs/results.md).
+The lying postures were designed (by a small constrained least-squares fit under the nominal
+contact law) so that each is a static equilibrium that satisfies the steady-foot constraints (5)
+with margin: foot load f_n0 = 150-180 N and centre of pressure u_1/f_n0 inside [-a0f, a0b] with
+>= 4 cm to spare. No lying posture can do so under the nominal and the relaxed contact laws at
+once (the relaxed law changes the load shared between the contacts and the foot by hundreds of
+newtons); the two-stage strategy therefore re-seats the start posture by millimetres for stage 1
+(``strategy.posture.reseat_for_contact``) so that the relaxed law carries the same contact forces.
 """
 
 from __future__ import annotations
@@ -34,15 +30,15 @@ import dataclasses
 
 import numpy as np
 
-from jaxhumanoid.model.params import DEG, HUMANOID_STRENGTH, PlanarChain
+from jaxhumanoid.model.params import DEG, PlanarChain
 
 STANDING = np.array([93.0 * DEG, 0.0, 0.0, -np.pi, -12.0 * DEG])
 PRONE = np.array([3.277316, -0.256628, -0.299796, -4.512321, -1.369876])
-SUPINE = np.array([0.703314, -1.776783, 1.39798, -5.93413, -2.094397])
+SUPINE = np.array([0.697404, -1.787126, 1.333707, -0.441913 - 2 * np.pi, -0.003109])
 
 GOAL_TOLERANCE = 0.05  # rad: the goal posture is "slightly relaxed by bound constraints" (Sec. II-G)
 CONTACT_FORCE_LIMIT = 1.0e4  # N: box on augmented contact-force variables
-EFFORT_SCALE = 100.0  # weight of (u_j / u_max_j)^2 in the torque term of (7)
+EFFORT_SCALE = 100.0  # weight of (u_j / u_max_j)^2 in the torque term of (7) (``effort_weights``)
 
 
 def _nonneg(name: str, val) -> None:
@@ -85,7 +81,8 @@ class Weights:
 
 
 def effort_weights(u_max, scale: float = EFFORT_SCALE) -> tuple[float, ...]:
-    """Per-joint torque weights w_u_j = scale / u_max_j^2 (u_max: (n,) strengths, N m)."""
+    """Per-joint torque weights w_u_j = scale / u_max_j^2 (u_max: (n,) strengths, N m): the torque
+    term of (7) becomes an effort in fractions of each joint's strength."""
     u_max = np.asarray(u_max, dtype=float)
     if u_max.ndim != 1 or not np.all(np.isfinite(u_max)) or np.any(u_max <= 0):
         raise ValueError(f"u_max: expected positive joint strengths (N m), one per joint, got {u_max!r}")
@@ -157,18 +154,11 @@ class Task:
         return q_min, q_max
 
 
-_W_U = effort_weights(HUMANOID_STRENGTH)
-# Getting up (T1, T3) and lying down on the back (T4): velocity 1, acceleration 2e-2, torque rate
-# 1e-5. Lying down face first (T2) is slow and smooth, so its acceleration and torque-rate terms
-# are small; doubling their weights brings them within 4x of the torque term.
-HUMANOID_WEIGHTS = Weights(w_u=_W_U, w_qd=1.0, w_dqd=2e-2, w_du=1e-5)
-HUMANOID_WEIGHTS_T2 = Weights(w_u=_W_U, w_qd=1.0, w_dqd=4e-2, w_du=2e-5)
-
 TASKS = {
-    "T1": Task("prone-to-stand", PRONE, STANDING, (1, 4, 5), weights=HUMANOID_WEIGHTS, key="T1"),
-    "T2": Task("stand-to-prone", STANDING, PRONE, (1, 4, 5), weights=HUMANOID_WEIGHTS_T2, key="T2"),
-    "T3": Task("supine-to-stand", SUPINE, STANDING, (2, 5), weights=HUMANOID_WEIGHTS, key="T3"),
-    "T4": Task("stand-to-supine", STANDING, SUPINE, (2, 5), weights=HUMANOID_WEIGHTS, key="T4"),
+    "T1": Task("prone-to-stand", PRONE, STANDING, (1, 4, 5), key="T1"),
+    "T2": Task("stand-to-prone", STANDING, PRONE, (1, 4, 5), key="T2"),
+    "T3": Task("supine-to-stand", SUPINE, STANDING, (2, 5), key="T3"),
+    "T4": Task("stand-to-supine", STANDING, SUPINE, (2, 5), key="T4"),
 }
 _BY_NAME = {t.name: t for t in TASKS.values()}
 
