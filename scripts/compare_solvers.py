@@ -1,9 +1,9 @@
 """The default tasks solved by every backend, side by side in one run: one answer to one problem?
 
-    python scripts/compare_solvers.py [--tasks T1 T2 T3 T4] [--solvers ipopt ipm casadi] [--N 100]
+    python scripts/compare_solvers.py [--tasks T1 T2 T3 T4 | examples/human/T1.toml ...] [--solvers ipopt ipm casadi] [--N 100]
         [--scheme A,F+C,2S] [--out results/compare_solvers.json] [--md results/compare_solvers.md]
 
-Per task and solver: the status, iterations, solve time and objective of each stage, the peak
+A task is a key or a task file (solved with the file's scheme, grid and options). Per task and solver: the status, iterations, solve time and objective of each stage, the peak
 loads (``Solution.peaks``) and the four objective terms; per task and pair of solvers: the
 relative objective difference and the largest joint-angle difference (rad) over the trajectory
 (``study_robustness.agreement``: the same optimum when objectives are within ``--obj-tol``
@@ -27,8 +27,12 @@ import jaxhumanoid as jh
 
 
 def run_one(task: str, solver: str, scheme: str, N: int) -> tuple[dict, Outcome]:
+    """One solve of a task key (scheme and N as given) or of a task file (its own settings)."""
     t0 = time.perf_counter()
-    sol = jh.solve(task, scheme=scheme, solver=solver, N=N)
+    if task.endswith(".toml"):
+        sol = jh.solve(**{**jh.load_task_file(task).as_solve_kwargs(), "solver": solver})
+    else:
+        sol = jh.solve(task, scheme=scheme, solver=solver, N=N)
     rec = sol.report()
     rec["wall_s"] = time.perf_counter() - t0
     return rec, Outcome(bool(sol.success), float(sol.objective), np.asarray(sol.q))
@@ -43,7 +47,8 @@ def table(results: dict) -> str:
         for s in solvers:
             rec = r["solves"][s]
             its = "+".join(str(i) for i in rec["iterations"])
-            ok = "" if rec["success"] else f" **{rec['status']}**"
+            failed = [st["status"] for st in rec["stages"] if not st["success"]]
+            ok = f" **{failed[0]}**" if failed else ""
             cells.append(f"{its}, {sum(rec['solve_time_s']):.1f}, {rec['objective']:.6g}{ok}")
         pairs = ", ".join(
             f"{p['a']}-{p['b']}: {'yes' if p['within'] else 'no'} ({p['rel_objective']:.0e}, {p['max_dq']:.0e} rad)"
