@@ -21,21 +21,16 @@ import pathlib
 import numpy as np
 
 import jaxhumanoid as jh
-from jaxhumanoid.model.params import ContactParams
 from jaxhumanoid.solvers.ipm import solve_ipm
 from jaxhumanoid.solvers.ipopt import solve_ipopt
-from jaxhumanoid.strategy.posture import reseat_for_contact
 from jaxhumanoid.strategy.problem import Problem, build_problem
-from jaxhumanoid.strategy.solve import STAGE1_DEFAULTS, STAGE1_N
+from jaxhumanoid.strategy.solve import STAGE1_DEFAULTS, STAGE1_N, stage_one_problem
 
 
 def stage_one(task: str, N: int = 100) -> Problem:
     """Stage 1 of A,F+C,2S for ``task`` as ``solve`` poses it."""
-    t = jh.get_task(task)
-    final = build_problem(t, "A,F+C,2S", N=N)
-    law = ContactParams.relaxed()
-    q_start, _ = reseat_for_contact(final.p, final.p.q_start, final.layout.active, law)
-    return build_problem(t, "A,F+C,2S", N=STAGE1_N, pseudo_static=True, contact=law, q_start=q_start)
+    final = build_problem(task, "A,F+C,2S", N=N)
+    return stage_one_problem(jh.get_task(task), "A,F+C,2S", final, STAGE1_N)
 
 
 def distinct(values: list[float], rtol: float = 1e-6) -> int:

@@ -287,7 +287,8 @@ def bounds_full(layout: Layout, goal, q_min, q_max, u_max, goal_tol=tasks_mod.GO
     lo[:, sl["q"]], hi[:, sl["q"]] = q_min, q_max
     lo[-1, sl["q"]] = np.maximum(q_min, goal - goal_tol)
     hi[-1, sl["q"]] = np.minimum(q_max, goal + goal_tol)
-    lo[:, sl["u"]], hi[:, sl["u"]] = -np.asarray(u_max, dtype=float), np.asarray(u_max, dtype=float)
+    u_max = np.asarray(u_max, dtype=float)
+    lo[:, sl["u"]], hi[:, sl["u"]] = -u_max, u_max
     if layout.augmented:
         lo[:, sl["f"]] = np.tile([-tasks_mod.CONTACT_FORCE_LIMIT, 0.0], len(layout.active))
         hi[:, sl["f"]] = tasks_mod.CONTACT_FORCE_LIMIT

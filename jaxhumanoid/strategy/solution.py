@@ -85,12 +85,11 @@ class Solution:
         of body weight M g (the foot excluded)."""
         body_weight = float(np.sum(self.geometry["m"]) * self.geometry["g"]) if "m" in self.geometry else np.nan
         f_n = np.asarray(self.f_contact)[..., 1]
-        peak = float(f_n.max()) if f_n.size else 0.0
         return {
             "torque_Nm": np.abs(np.asarray(self.u)).max(axis=0).tolist(),
             "contact_normal_force_N": f_n.max(axis=0).tolist(),
             "foot_normal_force_N": float(np.asarray(self.foot_reaction)[:, 1].max()),
-            "contact_normal_force_body_weights": peak / body_weight,
+            "contact_normal_force_body_weights": float(f_n.max()) / body_weight,
         }
 
     def report(self) -> dict[str, Any]:

@@ -176,13 +176,13 @@ def restart_point(problem: Problem, seed: int | None) -> np.ndarray:
     return np.clip(b.x0 + STAGE1_RESTART_SIGMA * noise, b.xl, b.xu)
 
 
-def _stage_one(task, scheme, solver, final: Problem, N1: int, options, contact_stage1, verbose):
-    """Stage 1 of 2S: the pseudo-static problem (8) on the coarse grid, from the start posture
-    re-seated for the stage-1 contact law, with the stage-1 fallbacks. Returns (stats, Z1)."""
+def stage_one_problem(task, scheme, final: Problem, N1: int, contact_stage1=None) -> Problem:
+    """Stage 1 of 2S for the final problem ``final``: the pseudo-static problem (8) on N1 intervals
+    under ``contact_stage1`` (default ``ContactParams.relaxed()``), from the start posture re-seated
+    for that law, with the final problem's horizon, weights, body and foot."""
     law = ContactParams.relaxed() if contact_stage1 is None else contact_stage1
     q_start1, _ = reseat_for_contact(final.p, final.p.q_start, final.layout.active, law)
-    t0 = time.perf_counter()
-    first = build_problem(
+    return build_problem(
         task,
         scheme,
         N=N1,
@@ -194,6 +194,12 @@ def _stage_one(task, scheme, solver, final: Problem, N1: int, options, contact_s
         model=final.model,
         foot=final.p.foot,
     )
+
+
+def _stage_one(task, scheme, solver, final: Problem, N1: int, options, contact_stage1, verbose):
+    """Stage 1 of 2S (``stage_one_problem``) with the stage-1 fallbacks. Returns (stats, Z1)."""
+    t0 = time.perf_counter()
+    first = stage_one_problem(task, scheme, final, N1, contact_stage1)
     setup_first = time.perf_counter() - t0
     attempts = [_run_solver(solver, first, first.bounds.x0, options, verbose)]
     for extra, seed in STAGE1_FALLBACKS:
