@@ -48,8 +48,11 @@ def test_casadi_solve_matches_ipopt():
     problem = _stage1_problem(6)
     opts = {"tol": 1e-10}
     ours = solve_ipopt(problem.nlp, problem.p, problem.bounds, x0=problem.bounds.x0, options=opts)
-    ref = solve_casadi(problem, x0=problem.bounds.x0, options=opts)
+    seen = []
+    ref = solve_casadi(problem, x0=problem.bounds.x0, options=opts, progress=lambda *a: seen.append(a))
     assert ref.success and ours.success, (ref.status, ours.status)
+    assert [k for k, _, _ in seen] == list(range(ref.iterations + 1))  # the progress callback, per iterate
+    assert abs(seen[-1][1] - ref.objective) <= 1e-9 * abs(ref.objective) and seen[-1][2] < 1e-6
     assert ref.status == "Solve_Succeeded"
     assert ref.iterations > 0 and ref.solve_time_s > 0 and ref.compile_time_s > 0
     assert ref.max_constraint_violation < 1e-6  # IPOPT relaxes bounds by 1e-8 relative (forces ~1e3 N)

@@ -178,3 +178,22 @@ def test_full_task_t3_two_stage_as_ipopt():
     assert abs(a.objective - b.objective) <= 1e-6 * abs(b.objective)
     assert np.max(np.abs(a.q - b.q)) <= 1e-4
     assert sum(s.iterations for s in a.stages) <= 1.5 * sum(s.iterations for s in b.stages)
+
+
+def test_progress_sees_every_iterate_and_keeps_the_iterates():
+    # with a progress callback the IPM runs one jitted iteration at a time: the same iterates,
+    # reported once per iteration (0..k), with the history's objective and infeasibility
+    nlp, bounds, p, _ = tp.hs071()
+    plain = solve_ipm(nlp, p, bounds)
+    seen = []
+    stepped = solve_ipm(nlp, p, bounds, progress=lambda k, f, inf: seen.append((k, f, inf)))
+    assert stepped.iterations == plain.iterations and np.array_equal(stepped.x, plain.x)
+    assert [k for k, _, _ in seen] == list(range(plain.iterations + 1))
+    np.testing.assert_array_equal([f for _, f, _ in seen], plain.history["obj"])
+    np.testing.assert_array_equal([i for _, _, i in seen], plain.history["inf_pr"])
+    ipopt_seen = []
+    ref = solve_ipopt(nlp, p, bounds, progress=lambda k, f, inf: ipopt_seen.append((k, f, inf)))
+    assert [k for k, _, _ in ipopt_seen] == list(range(ref.iterations + 1))
+    assert abs(ipopt_seen[-1][1] - ref.objective) <= 1e-9 * abs(ref.objective)
+    with pytest.raises(ValueError, match="keep_history"):
+        solve_ipm(nlp, p, bounds, options={"keep_history": False}, progress=lambda *a: None)

@@ -111,3 +111,26 @@ def test_start_postures_are_equilibria_with_foot_margin(key):
         others = [i - 1 for i in range(1, 6) if i not in task.active]
         assert np.all(gaps[others] > 0.01)  # clearance joints are off the ground
         assert np.all((q > pc.model.q_min) & (q < pc.model.q_max))
+
+
+@pytest.mark.parametrize("pseudo", [False, True])
+def test_inverse_dynamics_guess_satisfies_dynamics_and_force_rows(pseudo):
+    # the guess's torques and forces zero the rows of (6b) (or (8)) and of the contact law on every
+    # interval after the frozen first one; the linear guess (u = f = 0) leaves them at gravity's size
+    kw = dict(N=12, pseudo_static=pseudo, contact=ContactParams.relaxed() if pseudo else None)
+    linear = build_problem("T1", "A,F+C,1S", **kw)
+    guessed = build_problem("T1", "A,F+C,1S", guess="inverse_dynamics", **kw)
+    L = linear.layout
+    n, nf = L.n_links, L.n_f
+    dyn_rows = slice(n, 2 * n + nf)  # (6b)/(8), then the force rows of scheme A
+
+    def rows(x):
+        return np.asarray(linear.nlp.g(x, linear.p)).reshape(L.N, L.n_con)[1:, dyn_rows]
+
+    Z = tr.inverse_dynamics_guess(L, linear.full(linear.bounds.x0), linear.p)
+    assert np.max(np.abs(rows(tr.free_from_full(L, jnp.asarray(Z))))) < 1e-9  # unclipped by the torque box
+    assert np.max(np.abs(rows(linear.bounds.x0))) > 10.0
+    u = guessed.full(guessed.bounds.x0)[:, L.stage_slices()["u"]]
+    assert np.all(np.abs(u) <= np.asarray(guessed.model.u_max) + 1e-12)  # x0 stays within the box
+    with pytest.raises(ValueError, match="guess"):
+        build_problem("T1", "A,F+C,1S", N=12, guess="zero")

@@ -308,3 +308,35 @@ def initial_guess_full(layout: Layout, start, goal, T) -> np.ndarray:
     Z[:, sl["q"]] = (1 - frac) * start + frac * goal
     Z[2 : N - 1, sl["qd"]] = (goal - start) / (T * (N - 1) / N)
     return Z
+
+
+def inverse_dynamics_guess(layout: Layout, Z, p: OCPParams) -> np.ndarray:
+    """``Z`` with the torques u_k (k >= 1) and, under A, the forces f_k of every interval set to the
+    inverse dynamics of its motion: the dynamics rows ((6b), or (8) when pseudo-static) and the force
+    rows hold exactly at the guess, so only the foot, clearance and bound rows can be violated.
+
+    Q = u + J^T f in (2), so the residual of (6b) or (8) at u = 0 is the torque that zeroes it.
+    The first interval keeps its fixed equilibrium torque u_0.
+    """
+    sl, rs = layout.stage_slices(), midpoint_slices(layout)
+    M = jnp.asarray(midpoint_map(layout))
+    h = p.T / layout.N
+
+    def interval(za, zb):
+        r = M @ jnp.concatenate([za, zb])
+        qbar, qdbar, dq, dqd = r[rs["qbar"]], r[rs["qdbar"]], r[rs["dq"]], r[rs["dqd"]]
+        zero = jnp.zeros(layout.n_links)
+        rate = dq / h if layout.pseudo_static else qdbar  # the rate the force rows use
+        f = ct.contact_forces(p.model, p.foot, p.contact, qbar, rate, layout.active)
+        if layout.pseudo_static:
+            u = dyn.pseudo_static_residual(p.model, qbar, zero, f, layout.active)
+        else:
+            u = dyn.dynamics_residual(p.model, qbar, qdbar, dqd / h, zero, f, layout.active)
+        return u, f.ravel()
+
+    Z = np.array(Z, dtype=float)
+    u, f = (np.asarray(a) for a in jax.vmap(interval)(jnp.asarray(Z[:-1]), jnp.asarray(Z[1:])))
+    Z[1 : layout.N, sl["u"]] = u[1:]
+    if layout.augmented:
+        Z[: layout.N, sl["f"]] = f
+    return Z

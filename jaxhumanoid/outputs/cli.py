@@ -17,11 +17,11 @@ from jaxhumanoid.ocp.scheme import TABLE2_SCHEMES
 from jaxhumanoid.ocp.tasks import TASKS, get_task
 from jaxhumanoid.outputs import plots, timeline
 from jaxhumanoid.outputs.animation import animate
-from jaxhumanoid.outputs.progress import Progress
+from jaxhumanoid.outputs.progress import IterationLine, Progress
 from jaxhumanoid.runtime import enable_compilation_cache
 from jaxhumanoid.solvers import ipopt_capi
 from jaxhumanoid.strategy.posture import find_equilibrium
-from jaxhumanoid.strategy.problem import stage_problem
+from jaxhumanoid.strategy.problem import GUESSES, stage_problem
 from jaxhumanoid.strategy.solution import Solution
 from jaxhumanoid.strategy.solve import solve
 from jaxhumanoid.strategy.taskfile import load_task_file
@@ -99,7 +99,7 @@ def _save(sol, out: pathlib.Path) -> dict:
     return report
 
 
-SOLVE_DEFAULTS = {"scheme": "A,F+C,2S", "solver": "ipopt", "N": 100, "T": 5.0, "N1": None}
+SOLVE_DEFAULTS = {"scheme": "A,F+C,2S", "solver": "ipopt", "N": 100, "T": 5.0, "N1": None, "guess": "linear"}
 
 
 def solve_arguments(args) -> dict:
@@ -123,7 +123,11 @@ def cmd_solve(args) -> int:
     args.solver = kwargs["solver"]
     options = {**(kwargs.pop("options", None) or {}), **checked_options(args)}
     t0 = time.perf_counter()
-    sol = solve(**kwargs, options=options or None, verbose=args.verbose)
+    line = IterationLine(quiet=args.quiet or args.verbose)
+    try:
+        sol = solve(**kwargs, options=options or None, verbose=args.verbose, progress=line)
+    finally:
+        line.close()
     report = _save(sol, out)
     _write_figures(sol, out, args.animate)
     if not args.quiet:
@@ -291,6 +295,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--N1", type=int, default=None, help="intervals of stage 1 of 2S (default min(30, N))")
     p.add_argument("--N", type=int, default=None, help="number of intervals of the (final) grid (default 100)")
     p.add_argument("--solver", default=None, choices=["ipopt", "ipm", "casadi"], help="default ipopt")
+    p.add_argument(
+        "--guess",
+        default=None,
+        choices=list(GUESSES),
+        help="initial guess: linear (the paper's, default) or inverse_dynamics (its torques and forces)",
+    )
     p.add_argument("--out", default="out/solve")
     p.add_argument("--animate", action="store_true", help="also write animation.gif")
     p.add_argument("--verbose", action="store_true", help="print IPOPT's iteration log")

@@ -137,3 +137,62 @@ class Progress:
             yield item
             if self._current is not None:
                 self.finish()
+
+
+class IterationLine:
+    """One updating line per solver stage: ``stage 2 (dynamic)  iteration 57  objective ...
+    infeasibility ...``, rewritten in place (carriage return) at most every ``interval`` seconds
+    and closed with a newline when the stage changes or ``close`` is called.
+
+    Call it as ``solve(..., progress=line)``: ``line(stage, iteration, objective, inf_pr)``.
+    ``live=None`` rewrites in place only on a terminal; elsewhere (logs, pipes) each stage gets
+    its final line only. ``quiet=True`` prints nothing.
+    """
+
+    def __init__(
+        self,
+        stream: TextIO | None = None,
+        quiet: bool = False,
+        live: bool | None = None,
+        interval: float = 0.1,
+        clock: Callable[[], float] = time.perf_counter,
+    ):
+        self.stream = stream if stream is not None else sys.stderr
+        self.quiet = bool(quiet)
+        self.live = bool(getattr(self.stream, "isatty", lambda: False)()) if live is None else bool(live)
+        self.interval, self.clock = float(interval), clock
+        self._stage: str | None = None
+        self._text = ""
+        self._shown = -float("inf")
+        self._width = 0
+
+    def __call__(self, stage: str, iteration: int, objective: float, inf_pr: float) -> None:
+        if stage != self._stage:
+            self.close()
+            self._stage = stage
+        self._text = f"{stage}  iteration {iteration:5d}  objective {objective: .6e}  infeasibility {inf_pr:.1e}"
+        now = self.clock()
+        if self.live and now - self._shown >= self.interval:
+            self._shown = now
+            self._write(self._text)
+
+    def _write(self, text: str) -> None:
+        if self.quiet:
+            return
+        pad = " " * max(self._width - len(text), 0)
+        self._width = len(text)
+        self.stream.write(f"\r{text}{pad}")
+        self.stream.flush()
+
+    def close(self) -> None:
+        """End the current stage's line (with its last iterate)."""
+        if self._stage is None:
+            return
+        if self.live:
+            self._write(self._text)
+        elif not self.quiet:
+            self.stream.write(self._text)
+        if not self.quiet:
+            self.stream.write("\n")
+            self.stream.flush()
+        self._stage, self._width, self._shown = None, 0, -float("inf")

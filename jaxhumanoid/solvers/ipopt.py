@@ -20,7 +20,7 @@ import numpy as np
 
 from jaxhumanoid.ocp.nlp import NLP, Bounds
 from jaxhumanoid.solvers import ipopt_capi
-from jaxhumanoid.solvers.result import NLPResult, constraint_violation
+from jaxhumanoid.solvers.result import IterationCallback, NLPResult, constraint_violation
 from jaxhumanoid.solvers.status import status_name, succeeded
 
 DEFAULT_OPTIONS = {
@@ -62,8 +62,9 @@ class _Callbacks:
     second half is kept until IPOPT reports a new x: half the dispatches per iteration.
     """
 
-    def __init__(self, nlp: NLP, p):
+    def __init__(self, nlp: NLP, p, progress: IterationCallback | None = None):
         self.p = p
+        self.progress = progress
         jitted = nlp.jitted()
         self._pairs = {"fg": jitted.fg, "dj": jitted.grad_jac}
         self._hess = jitted.hess
@@ -136,6 +137,8 @@ class _Callbacks:
             self.history, (obj_value, inf_pr, inf_du, mu, d_norm, regularization_size, alpha_du, alpha_pr, ls_trials)
         ):
             self.history[key].append(val)
+        if self.progress is not None:
+            self.progress(int(iter_count), float(obj_value), float(inf_pr))
 
 
 def _finite_or_inf(a, sign):
@@ -151,12 +154,14 @@ def solve_ipopt(
     options: dict | None = None,
     verbose: bool = False,
     warm: NLPResult | None = None,
+    progress: IterationCallback | None = None,
 ) -> NLPResult:
     """Solve ``nlp`` at parameters ``p`` with IPOPT (exact Hessian, MUMPS by default).
 
     ``options`` are IPOPT options, merged over ``DEFAULT_OPTIONS``; ``verbose`` echoes IPOPT's
     iteration log; ``warm`` (an earlier result) supplies starting multipliers (lam_g, z_l, z_u),
-    which IPOPT uses with ``warm_start_init_point=yes``. The returned ``NLPResult.success`` is True
+    which IPOPT uses with ``warm_start_init_point=yes``; ``progress`` is called with (iteration,
+    objective, primal infeasibility) from IPOPT's intermediate callback. The returned ``NLPResult.success`` is True
     for Solve_Succeeded and Solved_To_Acceptable_Level only.
     """
     opts = dict(DEFAULT_OPTIONS)
@@ -166,7 +171,7 @@ def solve_ipopt(
         raise ValueError(f"x0: expected shape ({nlp.n},), got {x0.shape}")
     if not np.all(np.isfinite(x0)):
         raise ValueError("x0: contains NaN or inf")
-    cb = _Callbacks(nlp, p)
+    cb = _Callbacks(nlp, p, progress)
     compile_time = cb.warm_up(x0, nlp.m)
     mults = {} if warm is None else {"mult_g": warm.lam_g, "mult_x_L": warm.z_l, "mult_x_U": warm.z_u}
     with captured_log(opts) as log:

@@ -3,9 +3,13 @@
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+
+IterationCallback = Callable[[int, float, float], None]
+"""What a solver calls after every iteration: (iteration, objective, primal infeasibility)."""
 
 
 @dataclasses.dataclass

@@ -15,6 +15,8 @@ from jaxhumanoid.ocp import transcription as tr
 from jaxhumanoid.ocp.nlp import NLP, Bounds
 from jaxhumanoid.ocp.scheme import Scheme, parse_scheme
 
+GUESSES = ("linear", "inverse_dynamics")
+
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class Problem:
@@ -81,16 +83,22 @@ def build_problem(
     q_start=None,
     model: PlanarChain | None = None,
     foot: FootParams | None = None,
+    guess: str = "linear",
 ) -> Problem:
     """The NLP (7) of one task under one scheme on an N-interval grid (one stage of a strategy).
 
     ``pseudo_static`` selects model (8) instead of (6b); ``contact`` defaults to the nominal law;
     ``model`` (the body, default ``PlanarChain.humanoid()``) must have as many links as the task has
     joints; ``foot`` defaults to ``FootParams.paper()``; ``q_start`` overrides the task's start
-    posture (used by the 2S stage 1 re-seating).
+    posture (used by the 2S stage 1 re-seating). ``guess`` is the initial guess (``GUESSES``):
+    ``"linear"``, Sec. II-G's q linear from start to goal with u and f zero; ``"inverse_dynamics"``,
+    the same motion with u and f that satisfy its dynamics and force rows
+    (``transcription.inverse_dynamics_guess``).
     """
     task = tasks_mod.get_task(task)
     scheme = parse_scheme(scheme)
+    if guess not in GUESSES:
+        raise ValueError(f"guess: {guess!r} not in {GUESSES}")
     if not isinstance(N, (int, np.integer)) or N < 3:
         raise ValueError(f"N: expected an integer number of intervals >= 3, got {N!r}")
     if not np.isfinite(T) or T <= 0:
@@ -116,6 +124,8 @@ def build_problem(
     free = layout.free_mask()
     kinds = np.tile(layout.constraint_kinds(), layout.N)
     Z0 = tr.initial_guess_full(layout, np.asarray(p.q_start), task.goal, T)
+    if guess == "inverse_dynamics":
+        Z0 = tr.inverse_dynamics_guess(layout, Z0, p)
     x0 = Z0[free]
     xl, xu = lo[free], hi[free]
     bounds = Bounds(

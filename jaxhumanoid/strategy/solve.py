@@ -9,8 +9,10 @@ paper); the barrier parameter of stage 2 is an IPOPT option (``stage2_options``)
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 import warnings
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
@@ -25,9 +27,9 @@ from jaxhumanoid.ocp.scheme import parse_scheme
 from jaxhumanoid.ocp.tasks import Task, Weights, get_task
 from jaxhumanoid.solvers.ipm import solve_ipm
 from jaxhumanoid.solvers.ipopt import solve_ipopt
-from jaxhumanoid.solvers.result import NLPResult, constraint_violation
+from jaxhumanoid.solvers.result import IterationCallback, NLPResult, constraint_violation
 from jaxhumanoid.strategy.posture import find_equilibrium, margins, reseat_for_contact
-from jaxhumanoid.strategy.problem import Problem, build_problem
+from jaxhumanoid.strategy.problem import GUESSES, Problem, build_problem
 from jaxhumanoid.strategy.solution import Solution, StageStats
 from jaxhumanoid.validation.casadi_backend import solve_casadi
 
@@ -54,14 +56,25 @@ STAGE1_FALLBACKS: tuple[tuple[dict, int | None], ...] = (
 )
 
 
-def _run_solver(solver: str, problem: Problem, x0, options, verbose) -> NLPResult:
+StageProgress = Callable[[str, int, float, float], None]
+"""What ``solve`` reports after every iteration: (stage name, iteration, objective, primal infeasibility)."""
+
+
+def _run_solver(
+    solver: str, problem: Problem, x0, options, verbose, progress: IterationCallback | None = None
+) -> NLPResult:
     if solver == "ipopt":
-        return solve_ipopt(problem.nlp, problem.p, problem.bounds, x0=x0, options=options, verbose=verbose)
+        nlp, p, b = problem.nlp, problem.p, problem.bounds
+        return solve_ipopt(nlp, p, b, x0=x0, options=options, verbose=verbose, progress=progress)
     if solver == "ipm":
-        return solve_ipm(problem.nlp, problem.p, problem.bounds, x0=x0, options=options)
+        return solve_ipm(problem.nlp, problem.p, problem.bounds, x0=x0, options=options, progress=progress)
     if solver == "casadi":
-        return solve_casadi(problem, x0=x0, options=options, verbose=verbose)
+        return solve_casadi(problem, x0=x0, options=options, verbose=verbose, progress=progress)
     raise ValueError(f"solver: {solver!r} not in {SOLVERS}")
+
+
+def _for_stage(progress: StageProgress | None, stage: str) -> IterationCallback | None:
+    return None if progress is None else functools.partial(progress, stage)
 
 
 def interpolate_full(Z_coarse: np.ndarray, T: float, layout_fine: tr.Layout) -> np.ndarray:
@@ -176,10 +189,10 @@ def restart_point(problem: Problem, seed: int | None) -> np.ndarray:
     return np.clip(b.x0 + STAGE1_RESTART_SIGMA * noise, b.xl, b.xu)
 
 
-def stage_one_problem(task, scheme, final: Problem, N1: int, contact_stage1=None) -> Problem:
+def stage_one_problem(task, scheme, final: Problem, N1: int, contact_stage1=None, guess: str = "linear") -> Problem:
     """Stage 1 of 2S for the final problem ``final``: the pseudo-static problem (8) on N1 intervals
     under ``contact_stage1`` (default ``ContactParams.relaxed()``), from the start posture re-seated
-    for that law, with the final problem's horizon, weights, body and foot."""
+    for that law, with the final problem's horizon, weights, body and foot, and initial ``guess``."""
     law = ContactParams.relaxed() if contact_stage1 is None else contact_stage1
     q_start1, _ = reseat_for_contact(final.p, final.p.q_start, final.layout.active, law)
     return build_problem(
@@ -193,20 +206,23 @@ def stage_one_problem(task, scheme, final: Problem, N1: int, contact_stage1=None
         weights=np.asarray(final.p.weights),
         model=final.model,
         foot=final.p.foot,
+        guess=guess,
     )
 
 
-def _stage_one(task, scheme, solver, final: Problem, N1: int, options, contact_stage1, verbose):
+def _stage_one(task, scheme, solver, final: Problem, N1: int, options, contact_stage1, guess, verbose, progress):
     """Stage 1 of 2S (``stage_one_problem``) with the stage-1 fallbacks. Returns (stats, Z1)."""
     t0 = time.perf_counter()
-    first = stage_one_problem(task, scheme, final, N1, contact_stage1)
+    first = stage_one_problem(task, scheme, final, N1, contact_stage1, guess)
     setup_first = time.perf_counter() - t0
-    attempts = [_run_solver(solver, first, first.bounds.x0, options, verbose)]
+    name = "stage 1 (pseudo-static)"
+    attempts = [_run_solver(solver, first, first.bounds.x0, options, verbose, _for_stage(progress, name))]
     for extra, seed in STAGE1_FALLBACKS:
         if attempts[-1].success:
             break
-        attempts.append(_run_solver(solver, first, restart_point(first, seed), {**options, **extra}, verbose))
-    stats = _stage_stats("stage 1 (pseudo-static)", first, attempts, setup_first, first.bounds.x0)
+        report = _for_stage(progress, f"{name}, attempt {len(attempts) + 1}")
+        attempts.append(_run_solver(solver, first, restart_point(first, seed), {**options, **extra}, verbose, report))
+    stats = _stage_stats(name, first, attempts, setup_first, first.bounds.x0)
     return stats, first.full(attempts[-1].x)
 
 
@@ -281,6 +297,8 @@ def solve(
     contact: ContactParams | None = None,
     foot: FootParams | None = None,
     contact_stage1: ContactParams | None = None,
+    guess: str = "linear",
+    progress: StageProgress | None = None,
 ) -> Solution:
     """Solve one task with one strategy.
 
@@ -291,14 +309,20 @@ def solve(
     task's), used by both stages. ``model`` (default ``PlanarChain.humanoid()``) and ``foot``
     (default ``FootParams.paper()``) apply to both stages; ``contact`` (default nominal) is the law
     of the dynamic stage, ``contact_stage1`` (default ``ContactParams.relaxed()``) that of the
-    pseudo-static stage 1. When the body, the foot or the law is given and the task's start
-    posture does not keep the foot steady under them, it is moved to the nearest posture that
-    does (``posture.find_equilibrium``; a warning says so), or a ValueError says none was found.
-    Every argument is checked before any work starts."""
+    pseudo-static stage 1. ``guess`` is the initial guess of the first stage (``GUESSES``): the
+    paper's linear one, or ``"inverse_dynamics"``, the same motion with torques and forces that
+    satisfy its dynamics (``transcription.inverse_dynamics_guess``). When the body, the foot or
+    the law is given and the task's start posture does not keep the foot steady under them, it
+    is moved to the nearest posture that does (``posture.find_equilibrium``; a warning says so),
+    or a ValueError says none was found. ``progress`` (e.g. ``outputs.progress.IterationLine``)
+    is called after every solver iteration with (stage name, iteration, objective, primal
+    infeasibility). Every argument is checked before any work starts."""
     task = get_task(task)
     scheme = parse_scheme(scheme)
     if solver not in SOLVERS:
         raise ValueError(f"solver: {solver!r} not in {SOLVERS}")
+    if guess not in GUESSES:
+        raise ValueError(f"guess: {guess!r} not in {GUESSES}")
     _check_inputs(
         N,
         T,
@@ -314,19 +338,19 @@ def solve(
     weights = _weights_array(weights, task.n if model is None else model.n)
     task = _seated_task(task, model, contact, foot)
     t0 = time.perf_counter()
-    final = build_problem(task, scheme, N=N, T=T, weights=weights, model=model, contact=contact, foot=foot)
+    final = build_problem(task, scheme, N=N, T=T, weights=weights, model=model, contact=contact, foot=foot, guess=guess)
     setup_final = time.perf_counter() - t0
     stages, warm = [], None
     x0 = final.bounds.x0
     if scheme.stages == 2:
         stage1 = {**STAGE1_DEFAULTS, **(options or {}), **(stage1_options or {})}
-        stats1, Z1 = _stage_one(task, scheme, solver, final, N1, stage1, contact_stage1, verbose)
+        stats1, Z1 = _stage_one(task, scheme, solver, final, N1, stage1, contact_stage1, guess, verbose, progress)
         stages.append(stats1)
         Zf = interpolate_full(Z1, T, final.layout)
         warm = {"t": np.linspace(0.0, T, N + 1), "q": Zf[:, final.layout.stage_slices()["q"]]}
         x0 = np.clip(np.asarray(tr.free_from_full(final.layout, Zf)), final.bounds.xl, final.bounds.xu)
     stage2 = {**(STAGE2_DEFAULTS if scheme.stages == 2 else {}), **(options or {}), **(stage2_options or {})}
-    res = _run_solver(solver, final, x0, stage2, verbose)
     name = "stage 2 (dynamic)" if scheme.stages == 2 else "single stage"
+    res = _run_solver(solver, final, x0, stage2, verbose, _for_stage(progress, name))
     stages.append(_stage_stats(name, final, [res], setup_final, x0))
     return make_solution(final, res.x, stages, solver, warm_start=warm)

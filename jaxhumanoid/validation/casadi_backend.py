@@ -31,7 +31,7 @@ import casadi as ca
 import numpy as np
 
 from jaxhumanoid.solvers.ipopt import DEFAULT_OPTIONS, captured_log
-from jaxhumanoid.solvers.result import NLPResult, constraint_violation
+from jaxhumanoid.solvers.result import IterationCallback, NLPResult, constraint_violation
 from jaxhumanoid.solvers.status import succeeded
 
 
@@ -279,13 +279,55 @@ _HISTORY_KEYS = {
 _EVAL_STATS = ("nlp_f", "nlp_g", "nlp_grad_f", "nlp_jac_g", "nlp_hess_l")
 
 
-def solve_casadi(problem, x0=None, options: dict | None = None, verbose: bool = False) -> NLPResult:
+class _Progress(ca.Callback):
+    """CasADi's ``iteration_callback``: hands every iterate's (iteration, objective, primal
+    infeasibility of g) to ``progress``; the bound violation of x is zero inside IPOPT."""
+
+    def __init__(self, n: int, m: int, gl, gu, progress: IterationCallback):
+        ca.Callback.__init__(self)
+        self.sizes = {"x": n, "f": 1, "g": m, "lam_x": n, "lam_g": m, "lam_p": 0}
+        self.gl, self.gu, self.progress, self.k = np.asarray(gl), np.asarray(gu), progress, 0
+        self.construct("progress", {})
+
+    def get_n_in(self):
+        return ca.nlpsol_n_out()
+
+    def get_n_out(self):
+        return 1
+
+    def get_name_in(self, i):
+        return ca.nlpsol_out(i)
+
+    def get_name_out(self, i):
+        return "ret"
+
+    def get_sparsity_in(self, i):
+        size = self.sizes[ca.nlpsol_out(i)]
+        return ca.Sparsity.dense(size, 1) if size else ca.Sparsity(0, 0)
+
+    def eval(self, arg):
+        values = dict(zip((ca.nlpsol_out(i) for i in range(ca.nlpsol_n_out())), arg))
+        g = np.asarray(values["g"]).ravel()
+        inf = float(np.max(np.maximum(0.0, np.maximum(self.gl - g, g - self.gu)), initial=0.0))
+        self.progress(self.k, float(values["f"]), inf)
+        self.k += 1
+        return [0]
+
+
+def solve_casadi(
+    problem,
+    x0=None,
+    options: dict | None = None,
+    verbose: bool = False,
+    progress: IterationCallback | None = None,
+) -> NLPResult:
     """Solve ``problem`` (a ``strategy.problem.Problem``) with CasADi's IPOPT.
 
     ``options`` are IPOPT options merged over ``solvers.ipopt.DEFAULT_OPTIONS`` (exact Hessian,
     MUMPS, same tol and mu_strategy as our IPOPT path). ``compile_time_s`` is the time to build
     the SX graph and the solver (derivative graphs included); ``solve_time_s`` is the wall time of the
-    solver call (CasADi's ``t_wall_total`` where its statistics report one).
+    solver call (CasADi's ``t_wall_total`` where its statistics report one). ``progress`` is
+    called with (iteration, objective, primal infeasibility) at every iterate.
     """
     bounds, nlp = problem.bounds, problem.nlp
     x0 = np.asarray(bounds.x0 if x0 is None else x0, dtype=np.float64)
@@ -300,6 +342,8 @@ def solve_casadi(problem, x0=None, options: dict | None = None, verbose: bool = 
     with captured_log(opts, prefix="casadi_ipopt_") as log:
         try:
             nlpsol_opts: dict = {"ipopt": opts, "print_time": False, "error_on_fail": False}
+            if progress is not None:
+                nlpsol_opts["iteration_callback"] = _Progress(nlp.n, nlp.m, bounds.gl, bounds.gu, progress)
             solver = ca.nlpsol("solver", "ipopt", {"x": cnlp.x, "f": cnlp.f, "g": cnlp.g}, nlpsol_opts)
         except RuntimeError as err:
             raise ValueError(f"options: CasADi/IPOPT rejected the options {sorted(opts)} ({err})") from err

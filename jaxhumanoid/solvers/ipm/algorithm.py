@@ -341,19 +341,30 @@ def iteration(ctx: Context, P: Prob, S: State):
     return S_next, status, info
 
 
-def run(ctx: Context, x0, xl, xu, gl, gu, p):
-    """The whole solve from the user's data: scaled problem, initial state, the loop.
-    Returns (final State, Prob) of the scaled problem (``problem.solution`` unscales)."""
+def start(ctx: Context, x0, xl, xu, gl, gu, p) -> tuple[State, Prob]:
+    """The scaled problem and the checked initial state (iteration 0) from the user's data."""
     P, x0 = make_prob(ctx, x0, xl, xu, gl, gu, p)
     S = initial_state(ctx, P, x0)
-    S = check(ctx, P, S, initial_info(S), running())
+    return check(ctx, P, S, initial_info(S), running()), P
+
+
+def advance(ctx: Context, P: Prob, S: State, k_stop=None) -> State:
+    """Iterations from S until a termination test fires (or, with ``k_stop``, iteration k_stop)."""
 
     def body(S_):
         S2, status, info = iteration(ctx, P, S_)
         return check(ctx, P, S2, info, status)
 
-    S = lax.while_loop(lambda S_: ~S_.done, body, S)
-    return S, P
+    if k_stop is None:
+        return lax.while_loop(lambda S_: ~S_.done, body, S)
+    return lax.while_loop(lambda S_: ~S_.done & (S_.k < k_stop), body, S)
+
+
+def run(ctx: Context, x0, xl, xu, gl, gu, p):
+    """The whole solve from the user's data: scaled problem, initial state, the loop.
+    Returns (final State, Prob) of the scaled problem (``problem.solution`` unscales)."""
+    S, P = start(ctx, x0, xl, xu, gl, gu, p)
+    return advance(ctx, P, S), P
 
 
 def solve(nlp, options: IPMOptions, x0, xl, xu, gl, gu, p) -> Solution:

@@ -9,11 +9,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxhumanoid.ocp.nlp import NLP, Bounds
-from jaxhumanoid.solvers.ipm.algorithm import solve
+from jaxhumanoid.solvers.ipm.algorithm import advance, solve, start
 from jaxhumanoid.solvers.ipm.log import format_log, trim_history
 from jaxhumanoid.solvers.ipm.options import IPMOptions, as_float64, make_options
+from jaxhumanoid.solvers.ipm.problem import make_context, solution
 from jaxhumanoid.solvers.ipm.state import Solution
-from jaxhumanoid.solvers.result import NLPResult, constraint_violation
+from jaxhumanoid.solvers.result import IterationCallback, NLPResult, constraint_violation
 from jaxhumanoid.solvers.status import SUCCESS, Status
 
 
@@ -98,16 +99,71 @@ def _compile_and_run(core, args):
     return jax.tree.map(np.asarray, out), solve_time, compile_time
 
 
-def solve_ipm(nlp: NLP, p, bounds: Bounds, x0=None, options: IPMOptions | dict | None = None) -> NLPResult:
+def _stepped_core(nlp: NLP):
+    """The solver core in three jitted parts, cached in ``nlp.cache``: the checked initial state,
+    one iteration (``advance`` to k + 1) and the unscaled solution. The loop body is the one of
+    ``_core``, so the iterates are the same; the host sees every iterate."""
+    key = ("ipm", "stepped")
+    if key not in nlp.cache:
+        nlp.cache[key] = {
+            "start": jax.jit(lambda x0, xl, xu, gl, gu, p, o: start(make_context(nlp, o), x0, xl, xu, gl, gu, p)),
+            "advance": jax.jit(lambda P, S, o: advance(make_context(nlp, o), P, S, S.k + 1)),
+            "finish": jax.jit(lambda P, S, o: solution(make_context(nlp, o), S, P)),
+            "compiled": set(),
+        }
+    return nlp.cache[key]
+
+
+def _run_stepped(core, args, progress: IterationCallback):
+    """``_compile_and_run`` one iteration at a time, calling ``progress(k, objective, inf_pr)``
+    after each. The first call of each part compiles it; that time counts as compile time."""
+    opts = args[-1]
+    compile_time, solve_time = 0.0, 0.0
+
+    def call(name, *a):
+        nonlocal compile_time, solve_time
+        t0 = time.perf_counter()
+        out = jax.block_until_ready(core[name](*a))
+        dt = time.perf_counter() - t0
+        if name in core["compiled"]:
+            solve_time += dt
+        else:
+            core["compiled"].add(name)
+            compile_time += dt
+        return out
+
+    S, P = call("start", *args)
+    while True:
+        k = int(S.k)
+        progress(k, float(S.hist["obj"][k]), float(S.hist["inf_pr"][k]))
+        if bool(S.done):
+            break
+        S = call("advance", P, S, opts)
+    out = call("finish", P, S, opts)
+    return jax.tree.map(np.asarray, out), solve_time, compile_time
+
+
+def solve_ipm(
+    nlp: NLP,
+    p,
+    bounds: Bounds,
+    x0=None,
+    options: IPMOptions | dict | None = None,
+    progress: IterationCallback | None = None,
+) -> NLPResult:
     """Solve the NLP with the own interior-point method; warm start from ``x0`` if given.
 
     The jitted core is compiled once per (NLP, integer/boolean/string options, argument shapes)
     and cached; float options (tolerances, mu_init, ...) are runtime inputs and never recompile.
-    The compile time is reported in ``compile_time_s`` (0 on a cache hit).
+    The compile time is reported in ``compile_time_s`` (0 on a cache hit). ``progress`` is called
+    with (iteration, objective, primal infeasibility) after every iteration; the solve then runs
+    one jitted iteration at a time (``_stepped_core``), with the same iterates.
     """
     opts = make_options(options)
     x0 = np.asarray(bounds.x0 if x0 is None else x0, dtype=float)
     _check_shapes(nlp, x0, bounds)
+    if progress is not None and not opts.keep_history:
+        raise ValueError("progress: needs the IPM's history (options keep_history=True)")
     core = _core(nlp, batched=False)
     args = (
         jnp.asarray(x0),
@@ -118,7 +174,10 @@ def solve_ipm(nlp: NLP, p, bounds: Bounds, x0=None, options: IPMOptions | dict |
         p,
         as_float64(opts),
     )
-    out, solve_time, compile_time = _compile_and_run(core, args)
+    if progress is None:
+        out, solve_time, compile_time = _compile_and_run(core, args)
+    else:
+        out, solve_time, compile_time = _run_stepped(_stepped_core(nlp), args, progress)
     return _package(nlp, out, bounds, opts, solve_time, compile_time)
 
 
