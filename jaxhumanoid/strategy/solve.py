@@ -41,10 +41,10 @@ STAGE1_N = 30
 # push keep the warm start instead of pushing every variable back to the middle of its bounds.
 STAGE1_DEFAULTS = {"mu_init": 1e-2}
 STAGE2_DEFAULTS = {"mu_init": 1e-3, "bound_push": 1e-6, "bound_frac": 1e-6}
-# Stage 1 can still end "infeasible" from the linear guess: its landscape is chaotic, and starts
+# Stage 1 can still end "infeasible" from its initial guess: its landscape is chaotic, and starts
 # 1e-4 apart end in different optima or fail (scripts/study_stage1.py). Each failed run is followed
 # by the next entry, in order, by every solver: (options, seed), where a seed moves every entry of
-# the linear guess by STAGE1_RESTART_SIGMA times a standard normal draw of that fixed seed. The
+# the initial guess by STAGE1_RESTART_SIGMA times a standard normal draw of that fixed seed. The
 # iterations and times of every run add up.
 STAGE1_RESTART_SIGMA = 1e-4
 STAGE1_FALLBACKS: tuple[tuple[dict, int | None], ...] = (
