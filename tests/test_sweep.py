@@ -17,6 +17,8 @@ from jaxhumanoid.model.params import PlanarChain
 from jaxhumanoid.outputs.cli import main as cli_main
 from jaxhumanoid.strategy.posture import margins
 from jaxhumanoid.studies import Crash, Outcome, Spec, agreement, load_spec, parse_spec, read_table, run_jobs, sweep
+from jaxhumanoid.studies.compare import problem_agreement
+from jaxhumanoid.studies.engines import plan_queues
 from jaxhumanoid.studies.run import perturbed_contact, perturbed_start, perturbed_weights
 from jaxhumanoid.studies.table import finished_ids, recovery
 
@@ -79,6 +81,8 @@ def test_random_draws_are_reproducible_and_independent_of_their_number():
         ({"random": {"contact.mu": {"normal": [1, 2]}}}, "random.contact.mu"),
         ({"random": {"contact.mu": {"uniform": [2.0, 1.0]}}}, "random.contact.mu.uniform"),
         ({"random": {"N": {"choice": [10]}}}, "N"),
+        ({"random": {"weights.w_u": {"uniform": [0.5, 2.0]}}}, "random.weights.w_u"),
+        ({"random": {"start_deg": "2"}}, "random.start_deg"),
         ({"kind": "table"}, "kind"),
         ({"kind": "inverse", "methods": ["newton"], "grid": None}, "methods"),
     ],
@@ -241,3 +245,28 @@ def test_the_cli_checks_its_arguments(tmp_path, capsys):
     assert "other columns" in capsys.readouterr().err
     with (tmp_path / "cases.csv").open() as fh:
         assert next(csv.reader(fh)) == ["id", "other"]  # an existing table is never overwritten
+
+
+def test_problem_agreement_reads_the_saved_trajectories(tmp_path):
+    q = np.linspace(0.0, 1.0, 22).reshape(11, 2)
+    rows = []
+    for solver, dq in (("ipopt", 0.0), ("ipm", 1e-7), ("casadi", 1e-2)):
+        (tmp_path / solver).mkdir()
+        np.savez(tmp_path / solver / "solution.npz", q=q + dq)
+        rows.append({"problem": "p", "task": "T1", "solver": solver, "success": True, "objective": 3.0})
+        rows[-1]["path"] = str(tmp_path / solver)
+    two = rows[:2] + [{**r, "problem": "lone"} for r in rows[2:]]
+    assert problem_agreement(two) == {"T1": {"problems": 1, "agree": 1, "agree_fraction": 1.0}}
+    assert problem_agreement(rows)["T1"]["agree"] == 0  # casadi's trajectory lies 1e-2 rad away
+
+
+def test_workers_get_one_grid_each_where_possible():
+    jobs = [("a", 50, 50.0), ("b", 100, 100.0), ("c", 50, 50.0), ("d", 50, 50.0)]
+    assert plan_queues(jobs, 1) == [["a", "c", "d", "b"]]
+    assert sorted(plan_queues(jobs, 2)) == [["a", "c", "d"], ["b"]]
+    group = {k: g for k, g, _ in jobs}
+    for workers in (2, 3, 4, 8):
+        queues = plan_queues(jobs, workers)
+        assert len(queues) == min(workers, len(jobs))
+        assert sorted(k for q in queues for k in q) == ["a", "b", "c", "d"]
+        assert all(len({group[k] for k in q}) == 1 for q in queues)

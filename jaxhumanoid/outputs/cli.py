@@ -264,17 +264,22 @@ def cmd_check(args) -> int:
 
 
 def cmd_sweep(args) -> int:
-    """Exit 0 when every case of the spec has a row (failed cases included: they are results)."""
-    summary = sweep(
-        args.spec,
-        args.out,
-        engine=args.engine,
-        workers=args.workers,
-        address=args.address,
-        retry_failed=args.retry_failed,
-        quiet=args.quiet,
-        cache=not args.no_cache,
-    )
+    """Exit 0 when every case of the spec has a row (failed cases included: they are results),
+    1 when some are pending, 130 when interrupted (the finished rows are kept: re-run to resume)."""
+    try:
+        summary = sweep(
+            args.spec,
+            args.out,
+            engine=args.engine,
+            workers=args.workers,
+            address=args.address,
+            retry_failed=args.retry_failed,
+            quiet=args.quiet,
+            cache=not args.no_cache,
+        )
+    except KeyboardInterrupt:
+        print(f"jaxhumanoid: interrupted; the same command resumes the study in {args.out}", file=sys.stderr)
+        return 130
     return 0 if summary["n_pending"] == 0 else 1
 
 

@@ -220,7 +220,7 @@ def _check_random(table: Mapping) -> dict[str, Any]:
     out: dict[str, Any] = {
         "draws": _positive("random.draws", table.get("draws", 1), integer=True),
         "seed": table.get("seed", 0),
-        "start_deg": float(table.get("start_deg", 0.0)),
+        "start_deg": table.get("start_deg", 0.0),
         "max_move": float(_positive("random.max_move", table.get("max_move", MAX_MOVE))),
         "max_redraws": table.get("max_redraws", MAX_REDRAWS),
     }
@@ -228,7 +228,8 @@ def _check_random(table: Mapping) -> dict[str, Any]:
         raise ValueError(f"random.seed: expected an integer >= 0, got {out['seed']!r}")
     if not isinstance(out["max_redraws"], int) or out["max_redraws"] < 0:
         raise ValueError(f"random.max_redraws: expected an integer >= 0, got {out['max_redraws']!r}")
-    if not 0 <= out["start_deg"] <= 45:
+    deg = out["start_deg"]
+    if isinstance(deg, bool) or not isinstance(deg, (int, float)) or not 0 <= deg <= 45:
         raise ValueError(f"random.start_deg: expected an offset in [0, 45] degrees, got {out['start_deg']!r}")
     out["dists"] = {k: _distribution(f"random.{k}", v) for k, v in table.items() if k in (*FACTORS, "N", "T")}
     for k, (dist, args) in out["dists"].items():
@@ -314,6 +315,9 @@ def _solve_cases(data: Mapping, base: pathlib.Path) -> tuple[list[Case], tuple[s
         raise ValueError(f"options: expected a table of solver options, got {options!r}")
     grid = _check_grid(data.get("grid", {}))
     random = _check_random(data["random"]) if "random" in data else None
+    for name in grid:
+        if random and name in random["dists"]:
+            raise ValueError(f"random.{name}: also under [grid]; give it in one of them")
     for axis in ("N", "T"):
         if random and axis in random["dists"] and axis in data:
             raise ValueError(f"{axis}: give it as a list or under [random], not both")

@@ -11,6 +11,7 @@ Running it again skips the finished cases.
 
 from __future__ import annotations
 
+import contextlib
 import pathlib
 import tempfile
 import time
@@ -52,6 +53,12 @@ def check_run(spec: Spec, engine: str, workers: int, address: str | None) -> Non
             ipopt_capi.check_options(ipopt_options)
         except ValueError as err:
             raise ValueError(f"options: {err}") from err
+
+
+def compile_group(case: Case) -> tuple[tuple, float]:
+    """(group, cost) of a case for the local pool: cases that share a task, scheme, solver and
+    grid share their problem set-up and compiled functions; the cost grows with the grid."""
+    return (case.kind, case.task, case.scheme, case.solver, case.N, case.N1), float(case.N or 100)
 
 
 def case_label(case: Case) -> str:
@@ -98,10 +105,12 @@ def sweep(
     t0 = time.perf_counter()
     try:
         jobs = [(key, (case, str(out), cache)) for key, case in pending.items()]
-        for key, result in run_jobs(run_case, jobs, engine, workers, address) if jobs else ():
-            row = crashed_row(pending[key], result.message) if isinstance(result, Crash) else result
-            table.append(row)
-            progress.completed(case_label(pending[key]), row_message(row))
+        groups = {key: compile_group(case) for key, case in pending.items()}
+        with contextlib.closing(run_jobs(run_case, jobs, engine, workers, address, groups)) as results:
+            for key, result in results:
+                row = crashed_row(pending[key], result.message) if isinstance(result, Crash) else result
+                table.append(row)
+                progress.completed(case_label(pending[key]), row_message(row))
     finally:
         wall = time.perf_counter() - t0
         rows = read_table(table.path)
