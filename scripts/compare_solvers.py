@@ -6,7 +6,7 @@
 A task is a key or a task file (solved with the file's scheme, grid and options). Per task and solver: the status, iterations, solve time and objective of each stage, the peak
 loads (``Solution.peaks``) and the four objective terms; per task and pair of solvers: the
 relative objective difference and the largest joint-angle difference (rad) over the trajectory
-(``study_robustness.agreement``: the same optimum when objectives are within ``--obj-tol``
+(``jaxhumanoid.studies.compare.agreement``: the same optimum when objectives are within ``--obj-tol``
 relative and joint trajectories within ``--q-tol`` rad); the ratio of the IPM's 2S solve time to the CasADi backend's.
 Run it with and without ``OMP_NUM_THREADS=1``: the environment is recorded with the results.
 """
@@ -21,9 +21,9 @@ import platform
 import time
 
 import numpy as np
-from study_robustness import Outcome, agreement
 
 import jaxhumanoid as jh
+from jaxhumanoid.studies.compare import Outcome, agreement
 
 
 def run_one(task: str, solver: str, scheme: str, N: int) -> tuple[dict, Outcome]:

@@ -9,7 +9,9 @@ seven weight ratios (w_qd fixed: x*(c w) = x*(w)) are fitted by ``jaxhumanoid.di
 * ``--method lbfgs``: scipy L-BFGS-B on the loss and its ``jax.vjp`` through the
   ``make_solve`` custom-VJP wrapper (one solve and one adjoint per evaluation).
 
-Writes the results (one entry per task and method) as JSON and prints a table.
+Writes the results (one entry per task and method) as JSON and prints a table. One fit is
+``jaxhumanoid.diff.inverse.fit_task_weights``; fits from many starts are a sweep
+(``examples/studies/inverse_multistart.toml``).
 
     python scripts/inverse_ocp.py --task T1 T2 T3 T4 --N 15 --json docs/inverse_ocp.json
 """
@@ -18,39 +20,9 @@ from __future__ import annotations
 
 import argparse
 import json
-import time
 
-import numpy as np
-
-from jaxhumanoid import diff as S
+from jaxhumanoid.diff.inverse import fit_task_weights
 from jaxhumanoid.runtime import enable_compilation_cache
-from jaxhumanoid.strategy.problem import build_problem
-
-
-def run(task="T1", N=15, T=5.0, scheme="A,F+C,1S", method="gn", seed=0, max_evals=None, verbose=True) -> dict:
-    t_start = time.perf_counter()
-    prob = build_problem(task, scheme, N=N, T=T)
-    data = S.reference_solve(prob, tol=1e-10, verbose=verbose)
-    w_true = np.asarray(prob.p.weights, dtype=float)
-    fit = S.WeightFit(prob, data.x, S.perturbed_weights(w_true, seed), verbose=verbose)
-    if method == "gn":
-        theta = fit.gauss_newton(max_evals=max_evals or 30)
-    elif method == "lbfgs":
-        theta = fit.lbfgs(max_evals=max_evals or 80)
-    else:
-        raise ValueError(f"method: {method!r} not in ('gn', 'lbfgs')")
-    out = {
-        "task": prob.task.key,
-        "scheme": scheme,
-        "N": N,
-        "method": method,
-        "seed": seed,
-        "data_objective": data.objective,
-        **fit.summary(theta, w_true),
-    }
-    out["wall_time_s"] = time.perf_counter() - t_start
-    out["history"] = fit.history
-    return out
 
 
 def print_table(outs) -> None:
@@ -79,7 +51,9 @@ def main(argv=None):
     outs = []
     for task in a.task:
         for method in a.method:
-            outs.append(run(task, a.N, a.T, a.scheme, method, seed=a.seed, max_evals=a.max_evals))
+            outs.append(
+                fit_task_weights(task, a.N, a.T, a.scheme, method, seed=a.seed, max_evals=a.max_evals, verbose=True)
+            )
             print_table(outs[-1:])
             if a.json:  # after every fit: a long run leaves what it has
                 with open(a.json, "w") as fh:

@@ -35,8 +35,8 @@ def main(argv=None) -> int:
 
     from jaxhumanoid.outputs.animation import animate
     from jaxhumanoid.outputs.plots import plot_solution
-    from jaxhumanoid.outputs.progress import Progress
     from jaxhumanoid.outputs.timeline import contact_summary, plot_contact_timeline
+    from jaxhumanoid.progress import Progress
     from jaxhumanoid.runtime import enable_compilation_cache
     from jaxhumanoid.strategy.solve import solve
 

@@ -22,7 +22,7 @@ import pathlib
 import numpy as np
 
 import jaxhumanoid as jh
-from jaxhumanoid.outputs.progress import Progress
+from jaxhumanoid.progress import Progress
 from jaxhumanoid.strategy.problem import Problem, build_problem
 from jaxhumanoid.strategy.solve import STAGE1_DEFAULTS, STAGE1_N, _run_solver, stage_one_problem
 

@@ -1,6 +1,7 @@
 """The package's layers hold: data flows one way, with no cycles and no hidden imports.
 
-    runtime, pytree -> model -> ocp -> derivatives -> solvers -> validation -> strategy -> diff -> outputs
+    runtime, pytree, progress -> model -> ocp -> derivatives -> solvers -> validation -> strategy -> diff
+    -> studies -> outputs
 
 A module may import its own layer and the layers below it, never one above. Imports are read
 from the source (``ast``), so the test also sees imports inside functions, which may name only
@@ -15,8 +16,20 @@ import pathlib
 import pytest
 
 PACKAGE = pathlib.Path(__file__).resolve().parents[1] / "jaxhumanoid"
-LAYERS = ("runtime", "pytree", "model", "ocp", "derivatives", "solvers", "validation", "strategy", "diff", "outputs")
-RANK = {"runtime": 0, "pytree": 0, **{name: i for i, name in enumerate(LAYERS) if i >= 2}}
+LAYERS = (
+    "runtime",
+    "pytree",
+    "model",
+    "ocp",
+    "derivatives",
+    "solvers",
+    "validation",
+    "strategy",
+    "diff",
+    "studies",
+    "outputs",
+)
+RANK = {"runtime": 0, "pytree": 0, "progress": 0, **{name: i for i, name in enumerate(LAYERS) if i >= 2}}
 
 
 def module_name(path: pathlib.Path) -> str:

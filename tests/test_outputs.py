@@ -292,7 +292,7 @@ def test_outputs_do_not_load_pyplot():
 
 
 def test_progress_reports_steps_elapsed_and_eta(capsys):
-    from jaxhumanoid.outputs.progress import Progress
+    from jaxhumanoid.progress import Progress
 
     now = [0.0]
     progress = Progress(3, clock=lambda: now[0])
@@ -313,7 +313,7 @@ def test_progress_reports_steps_elapsed_and_eta(capsys):
 def test_iteration_line_rewrites_one_line_per_stage():
     import io
 
-    from jaxhumanoid.outputs.progress import IterationLine
+    from jaxhumanoid.progress import IterationLine
 
     now = [0.0]
     live = io.StringIO()

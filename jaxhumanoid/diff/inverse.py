@@ -2,7 +2,8 @@
 
 ``WeightFit`` fits log-weights so that x*(w) matches a given trajectory, by Gauss-Newton (the
 residual Jacobian from KKT JVPs) or L-BFGS (``jax.grad`` through ``make_solve``), every solve
-continued along the data's branch of local optima (``continuation_solve``).
+continued along the data's branch of local optima (``continuation_solve``). ``fit_task_weights``
+is one whole experiment: the data from the task's own weights, a fit from one random start.
 """
 
 from __future__ import annotations
@@ -18,9 +19,10 @@ from scipy import optimize
 
 from jaxhumanoid.diff.adjoint import make_solve, warm_start
 from jaxhumanoid.diff.kkt import KKTSensitivity
-from jaxhumanoid.diff.resolve import continuation_solve, resolve
+from jaxhumanoid.diff.resolve import continuation_solve, reference_solve, resolve
 from jaxhumanoid.diff.trees import rel_err, zeros_like_params
 from jaxhumanoid.ocp.nlp import Bounds
+from jaxhumanoid.strategy.problem import build_problem
 
 
 def weight_names(n: int) -> tuple[str, ...]:
@@ -300,3 +302,42 @@ class WeightFit:
             out["recovered_factors"] = (self.weights(theta)[self.free] / w_true[self.free]).tolist()
             out["max_rel_weight_error"] = float(np.max(np.abs(self.weights(theta)[self.free] / w_true[self.free] - 1)))
         return out
+
+
+def fit_task_weights(
+    task="T1",
+    N: int = 15,
+    T: float = 5.0,
+    scheme: str = "A,F+C,1S",
+    method: str = "gn",
+    seed: int = 0,
+    max_evals: int | None = None,
+    verbose: bool = False,
+) -> dict:
+    """One inverse experiment: x_data = x*(w_true) by ``reference_solve`` with the task's weights,
+    then a fit from ``perturbed_weights(w_true, seed)`` by ``method`` (``gn``: ``gauss_newton``,
+    at most ``max_evals`` (default 30) solves; ``lbfgs``: ``lbfgs``, default 80). Returns the
+    JSON-able ``WeightFit.summary`` with the settings, the wall time and the loss history."""
+    if method not in ("gn", "lbfgs"):
+        raise ValueError(f"method: {method!r} not in ('gn', 'lbfgs')")
+    t_start = time.perf_counter()
+    prob = build_problem(task, scheme, N=N, T=T)
+    data = reference_solve(prob, tol=1e-10, verbose=verbose)
+    w_true = np.asarray(prob.p.weights, dtype=float)
+    fit = WeightFit(prob, data.x, perturbed_weights(w_true, seed), verbose=verbose)
+    if method == "gn":
+        theta = fit.gauss_newton(max_evals=max_evals or 30)
+    else:
+        theta = fit.lbfgs(max_evals=max_evals or 80)
+    out = {
+        "task": prob.task.key,
+        "scheme": scheme,
+        "N": N,
+        "method": method,
+        "seed": seed,
+        "data_objective": data.objective,
+        **fit.summary(theta, w_true),
+    }
+    out["wall_time_s"] = time.perf_counter() - t_start
+    out["history"] = fit.history
+    return out

@@ -1,4 +1,5 @@
-"""Command line: ``jaxhumanoid solve | table2 | tasks | posture | animate | check`` (also ``python -m jaxhumanoid``)."""
+"""Command line: ``jaxhumanoid solve | table2 | tasks | posture | animate | check | sweep``
+(also ``python -m jaxhumanoid``)."""
 
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ from jaxhumanoid.ocp.scheme import TABLE2_SCHEMES
 from jaxhumanoid.ocp.tasks import TASKS, get_task
 from jaxhumanoid.outputs import plots, timeline
 from jaxhumanoid.outputs.animation import animate
-from jaxhumanoid.outputs.progress import IterationLine, Progress
+from jaxhumanoid.progress import IterationLine, Progress
 from jaxhumanoid.runtime import enable_compilation_cache
 from jaxhumanoid.solvers import ipopt_capi
 from jaxhumanoid.strategy.posture import find_equilibrium
@@ -25,6 +26,7 @@ from jaxhumanoid.strategy.problem import GUESSES, stage_problem
 from jaxhumanoid.strategy.solution import Solution
 from jaxhumanoid.strategy.solve import solve
 from jaxhumanoid.strategy.taskfile import load_task_file
+from jaxhumanoid.studies import ENGINES, sweep
 from jaxhumanoid.validation import checks
 
 # Table II of the paper: (iterations, seconds) per task and scheme; None = failed.
@@ -265,6 +267,26 @@ def cmd_check(args) -> int:
     return 0 if not failed else 1
 
 
+def cmd_sweep(args) -> int:
+    """Exit 0 when every case of the spec has a row (failed cases included: they are results),
+    1 when some are pending, 130 when interrupted (the finished rows are kept: re-run to resume)."""
+    try:
+        summary = sweep(
+            args.spec,
+            args.out,
+            engine=args.engine,
+            workers=args.workers,
+            address=args.address,
+            retry_failed=args.retry_failed,
+            quiet=args.quiet,
+            cache=not args.no_cache,
+        )
+    except KeyboardInterrupt:
+        print(f"jaxhumanoid: interrupted; the same command resumes the study in {args.out}", file=sys.stderr)
+        return 130
+    return 0 if summary["n_pending"] == 0 else 1
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="jaxhumanoid", description="Two-stage trajectory optimisation of a planar humanoid (JAX)."
@@ -350,6 +372,16 @@ def build_parser() -> argparse.ArgumentParser:
         "--out", default=None, help="also write the rows (with --sensitivities: and the full results) as JSON"
     )
     p.set_defaults(func=cmd_check)
+
+    p = sub.add_parser("sweep", help="run a study: every case of a TOML spec, on worker processes or a cluster")
+    p.add_argument("spec", help="the study's TOML file (examples/sweep_small.toml; format in studies/spec.py)")
+    p.add_argument("--out", required=True, help="folder of cases.csv, summary.json and cases/<id>/; re-runs resume")
+    p.add_argument("--engine", default="local", choices=ENGINES, help="local: spawned processes (default); dask")
+    p.add_argument("--address", default=None, help="a running Dask scheduler (default: start a local cluster)")
+    p.add_argument("--workers", type=int, default=1, help="worker processes (local pool or local cluster)")
+    p.add_argument("--retry-failed", action="store_true", help="also re-run the cases that failed or crashed")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.set_defaults(func=cmd_sweep)
     return parser
 
 

@@ -314,7 +314,7 @@ def solve(
     satisfy its dynamics (``transcription.inverse_dynamics_guess``). When the body, the foot or
     the law is given and the task's start posture does not keep the foot steady under them, it
     is moved to the nearest posture that does (``posture.find_equilibrium``; a warning says so),
-    or a ValueError says none was found. ``progress`` (e.g. ``outputs.progress.IterationLine``)
+    or a ValueError says none was found. ``progress`` (e.g. ``jaxhumanoid.progress.IterationLine``)
     is called after every solver iteration with (stage name, iteration, objective, primal
     infeasibility). Every argument is checked before any work starts."""
     task = get_task(task)

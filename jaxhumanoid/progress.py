@@ -1,4 +1,5 @@
-"""A tiny progress reporter for long runs (Table II, figure scripts): one line per step.
+"""Progress of long runs: ``Progress`` for runs of many steps (Table II, figure scripts, sweeps), one
+line per step; ``IterationLine`` for one solve, one updating line per solver stage.
 
     progress = Progress(len(cells), quiet=args.quiet)
     for task, scheme in progress.iter(cells, label=lambda c: f"{c[0]} {c[1]}"):
@@ -11,7 +12,9 @@ prints lines such as
     [ 3/16] T1 A,F+C,2S  done in 41.0 s  Solve_Succeeded, iterations [325, 355]
 
 The ETA is the mean duration of the finished steps times the number of steps left; it is not
-shown before the first step has finished. Standard library only; output goes to ``stream``
+shown before the first step has finished. Steps that run concurrently and finish in any order
+(a pool of workers) are reported by ``completed(label, message)``, one line each, with the ETA
+from the rate so far (elapsed / done x left). Standard library only; output goes to ``stream``
 (default ``sys.stdout``) and is flushed after every line; ``quiet=True`` prints nothing.
 """
 
@@ -123,6 +126,16 @@ class Progress:
             f"{self._prefix(index, label)}  done in {format_duration(duration)}{'  ' + text if text else ''}{eta_text}"
         )
         return duration
+
+    def completed(self, label: str, message: str = "") -> None:
+        """Count one step that ran elsewhere (a worker) and has just finished: one line with the
+        elapsed time and the ETA elapsed / done x left (concurrent steps overlap, so the mean
+        step duration would overstate what is left)."""
+        self.done += 1
+        left = max(self.total - self.done, 0)
+        eta = f"  ETA {format_duration(self.elapsed / self.done * left)}" if left else ""
+        text = f"  {message}" if message else ""
+        self._emit(f"{self._prefix(self.done, str(label))}  done{text}  elapsed {format_duration(self.elapsed)}{eta}")
 
     def summary(self) -> str:
         """One closing line: steps done and total elapsed time (printed unless quiet)."""
