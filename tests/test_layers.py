@@ -1,6 +1,6 @@
 """The package's layers hold: data flows one way, with no cycles and no hidden imports.
 
-    runtime, pytree -> model -> ocp -> derivatives -> solvers -> validation -> strategy -> diff -> outputs
+    runtime, pytree -> model -> ocp -> derivatives -> solvers -> validation -> strategy -> diff -> tracking -> outputs
 
 A module may import its own layer and the layers below it, never one above. Imports are read
 from the source (``ast``), so the test also sees imports inside functions, which may name only
@@ -15,7 +15,19 @@ import pathlib
 import pytest
 
 PACKAGE = pathlib.Path(__file__).resolve().parents[1] / "jaxhumanoid"
-LAYERS = ("runtime", "pytree", "model", "ocp", "derivatives", "solvers", "validation", "strategy", "diff", "outputs")
+LAYERS = (
+    "runtime",
+    "pytree",
+    "model",
+    "ocp",
+    "derivatives",
+    "solvers",
+    "validation",
+    "strategy",
+    "diff",
+    "tracking",
+    "outputs",
+)
 RANK = {"runtime": 0, "pytree": 0, **{name: i for i, name in enumerate(LAYERS) if i >= 2}}
 
 

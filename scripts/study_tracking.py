@@ -1,0 +1,90 @@
+"""Study: do the plans of T1-T4 execute? Open loop against TVLQR over perturbed bodies and starts.
+
+    python scripts/study_tracking.py [--tasks T1 T2 T3 T4] [--trials 100] [--seed 0] [--plans DIR]
+        [--out docs/tracking.json]
+
+Each task is solved with the defaults (A,F+C,2S, N = 100, IPOPT) into ``--plans``/Tk (reused when
+a solution is already there), then ``jaxhumanoid.tracking.track`` runs ``--trials`` perturbed
+executions at the default perturbation, open loop and closed loop, as one batch each. Writes the
+JSON (rates, failure reasons, timings) and a markdown table next to it (``.md``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import json
+import pathlib
+import time
+
+import jaxhumanoid as jh
+from jaxhumanoid.outputs.progress import Progress
+from jaxhumanoid.tracking import track
+
+
+def plan(task: str, plans: pathlib.Path) -> pathlib.Path:
+    out = plans / task
+    if not (out / "solution.npz").is_file():
+        jh.solve(task).save(out)
+    return out
+
+
+def summary(res, wall_s: float) -> dict:
+    reasons = {
+        key: dict(collections.Counter(r[key]["reason"] or "success" for r in res.records))
+        for key in ("open_loop", "closed_loop")
+    }
+    first_fail = sorted(r["closed_loop"]["t_fail"] for r in res.records if r["closed_loop"]["t_fail"] is not None)
+    return {
+        "task": res.task,
+        "trials": res.trials,
+        "open_loop_success_rate": res.open_loop_success_rate,
+        "closed_loop_success_rate": res.closed_loop_success_rate,
+        "reasons": reasons,
+        "closed_loop_goal_reached_rate": sum(r["closed_loop"]["goal_reached"] for r in res.records) / res.trials,
+        "closed_loop_median_t_fail_s": first_fail[len(first_fail) // 2] if first_fail else None,
+        "wall_s": wall_s,
+        "trials_per_s": 2 * res.trials / wall_s,
+        "timing_s": res.timing_s,
+    }
+
+
+def markdown(rows) -> str:
+    lines = [
+        "| task | trials | open loop success | closed loop success | closed loop: first failures | median time of "
+        "first failure (s) | closed loop at the goal at the end | wall (s) | rollouts/s |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        fails = ", ".join(f"{k} {v}" for k, v in sorted(r["reasons"]["closed_loop"].items()) if k != "success")
+        t_fail = "-" if r["closed_loop_median_t_fail_s"] is None else f"{r['closed_loop_median_t_fail_s']:.2f}"
+        lines.append(
+            f"| {r['task']} | {r['trials']} | {r['open_loop_success_rate']:.0%} | {r['closed_loop_success_rate']:.0%} "
+            f"| {fails or '-'} | {t_fail} | {r['closed_loop_goal_reached_rate']:.0%} | {r['wall_s']:.0f} "
+            f"| {r['trials_per_s']:.2f} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--tasks", nargs="*", default=["T1", "T2", "T3", "T4"])
+    parser.add_argument("--trials", type=int, default=100)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--plans", default="out/tracking_plans")
+    parser.add_argument("--out", default="docs/tracking.json")
+    args = parser.parse_args()
+    rows = []
+    for task in args.tasks:
+        src = plan(task, pathlib.Path(args.plans))
+        t0 = time.perf_counter()
+        res = track(src, trials=args.trials, seed=args.seed, progress=Progress(4))
+        rows.append(summary(res, time.perf_counter() - t0))
+        print(markdown(rows[-1:]), flush=True)
+        out = pathlib.Path(args.out)
+        out.write_text(json.dumps(rows, indent=2) + "\n")
+        out.with_suffix(".md").write_text(markdown(rows))
+
+
+if __name__ == "__main__":
+    main()
