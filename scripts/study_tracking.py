@@ -1,12 +1,15 @@
 """Study: do the plans of T1-T4 execute? Open loop against TVLQR over perturbed bodies and starts.
 
     python scripts/study_tracking.py [--tasks T1 T2 T3 T4] [--trials 100] [--seed 0] [--plans DIR]
-        [--out docs/tracking.json]
+        [--out docs/tracking.json] [--defects]
 
 Each task is solved with the defaults (A,F+C,2S, N = 100, IPOPT) into ``--plans``/Tk (reused when
 a solution is already there), then ``jaxhumanoid.tracking.track`` runs ``--trials`` perturbed
 executions at the default perturbation, open loop and closed loop, as one batch each. Writes the
-JSON (rates, failure reasons, timings) and a markdown table next to it (``.md``).
+JSON (rates, failure reasons, timings) and a markdown table next to it (``.md``); rows of tasks
+not run this time are kept from an existing ``--out``. ``--defects`` instead measures how far each
+plan is from the simulator interval by interval (``tracking.plan.interval_defects``) and adds it to
+the rows (and a table to ``.defects.md``).
 """
 
 from __future__ import annotations
@@ -17,9 +20,12 @@ import json
 import pathlib
 import time
 
+import numpy as np
+
 import jaxhumanoid as jh
 from jaxhumanoid.outputs.progress import Progress
 from jaxhumanoid.tracking import track
+from jaxhumanoid.tracking.plan import interval_defects
 
 
 def plan(task: str, plans: pathlib.Path) -> pathlib.Path:
@@ -66,6 +72,43 @@ def markdown(rows) -> str:
     return "\n".join(lines) + "\n"
 
 
+DEFECT_SUBSTEPS = (1, 10, 40)
+
+
+def defects(sol) -> dict:
+    """Quantiles (50, 90, 99, 100 %) of the per-interval angle defect (rad) at each DEFECT_SUBSTEPS."""
+    return {
+        str(m): np.quantile(interval_defects(sol, m)[:, 0], [0.5, 0.9, 0.99, 1.0]).tolist() for m in DEFECT_SUBSTEPS
+    }
+
+
+def write_defects(args, rows, out: pathlib.Path) -> None:
+    by_task = {r["task"]: r for r in rows}
+    for task in args.tasks:
+        by_task.setdefault(task, {"task": task})["defects_rad"] = defects(
+            jh.Solution.load(plan(task, pathlib.Path(args.plans)))
+        )
+        print(task, by_task[task]["defects_rad"], flush=True)
+    rows = sorted(by_task.values(), key=lambda r: r["task"])
+    out.write_text(json.dumps(rows, indent=2) + "\n")
+    (out.with_suffix(".defects.md")).write_text(defects_markdown(rows))
+
+
+def defects_markdown(rows) -> str:
+    lines = [
+        "| task | "
+        + " | ".join(f"{m} substep{'s' if m > 1 else ''}: median / 99 % / max" for m in DEFECT_SUBSTEPS)
+        + " |",
+        "|---|" + "---|" * len(DEFECT_SUBSTEPS),
+    ]
+    for r in rows:
+        if "defects_rad" in r:
+            d = r["defects_rad"]
+            cells = [f"{d[str(m)][0]:.1e} / {d[str(m)][2]:.2f} / {d[str(m)][3]:.2f}" for m in DEFECT_SUBSTEPS]
+            lines.append(f"| {r['task']} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--tasks", nargs="*", default=["T1", "T2", "T3", "T4"])
@@ -73,15 +116,22 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--plans", default="out/tracking_plans")
     parser.add_argument("--out", default="docs/tracking.json")
+    parser.add_argument(
+        "--defects", action="store_true", help="instead: the plans' interval defects against the simulator only"
+    )
     args = parser.parse_args()
-    rows = []
+    out = pathlib.Path(args.out)
+    rows = json.loads(out.read_text()) if out.is_file() else []  # rows of other tasks are kept
+    if args.defects:
+        write_defects(args, rows, out)
+        return
     for task in args.tasks:
         src = plan(task, pathlib.Path(args.plans))
         t0 = time.perf_counter()
         res = track(src, trials=args.trials, seed=args.seed, progress=Progress(4))
-        rows.append(summary(res, time.perf_counter() - t0))
-        print(markdown(rows[-1:]), flush=True)
-        out = pathlib.Path(args.out)
+        row = summary(res, time.perf_counter() - t0)
+        rows = sorted([r for r in rows if r["task"] != task] + [row], key=lambda r: r["task"])
+        print(markdown([row]), flush=True)
         out.write_text(json.dumps(rows, indent=2) + "\n")
         out.with_suffix(".md").write_text(markdown(rows))
 

@@ -23,34 +23,14 @@ from jaxhumanoid.ocp import tasks
 from jaxhumanoid.ocp import transcription as tr
 from jaxhumanoid.outputs import tracking_plots
 from jaxhumanoid.outputs.cli import main
-from jaxhumanoid.strategy.solution import Solution, StageStats
+from jaxhumanoid.strategy.solution import Solution
 from jaxhumanoid.tracking import LQRWeights, Perturbation, Plant, linearise, reference, riccati, step, track
 from jaxhumanoid.tracking.montecarlo import Criteria, _gains
-from jaxhumanoid.tracking.plan import plant_and_goal
+from jaxhumanoid.tracking.plan import plant_and_goal, static_plan
 
 BODY, FOOT, LAW = PlanarChain.humanoid(), FootParams.paper(), ContactParams.nominal()
 PLANT = Plant(BODY, FOOT, LAW)
 SUPINE_ACTIVE = tasks.TASKS["T3"].active  # hip and hand on the ground: stiff contact and friction
-
-
-def standing_plan(N: int = 10, T: float = 1.0) -> Solution:
-    """Standing still for T seconds: q constant, qd = 0, u the equilibrium torques."""
-    task = tasks.TASKS["T2"]
-    p = tr.default_params(task)
-    q = np.asarray(task.start)
-    u = np.asarray(tr.equilibrium_torques(p, jnp.asarray(q), task.active))
-    geometry = {
-        "a": BODY.a, "names": BODY.names, "ankle_height": FOOT.ankle_height, "a0f": FOOT.a0f, "a0b": FOOT.a0b,
-        "mu": LAW.mu, "m": BODY.m, "g": BODY.g, "c": BODY.c, "inertia": BODY.inertia, "u_max": BODY.u_max,
-        "kappa": LAW.kappa, "f0": LAW.f0, "xhat": LAW.xhat, "goal": q, "goal_tolerance": task.goal_tolerance,
-    }  # fmt: skip
-    stats = StageStats("single stage", "Solve_Succeeded", True, 0, 0.0, 0.0, 0.0, 0.0, 0, 0)
-    return Solution(
-        task="stand", scheme="A,F+C,1S", solver="none", t=np.linspace(0, T, N + 1), q=np.tile(q, (N + 1, 1)),
-        qd=np.zeros((N + 1, 5)), u=np.tile(u, (N, 1)), f_contact=np.zeros((N, 5, 2)), gaps=np.zeros((N + 1, 5)),
-        foot_reaction=np.zeros((N, 2)), foot_margins=np.ones((N, 5)), objective=0.0, objective_terms={},
-        stages=[stats], active=task.active, geometry=geometry,
-    )  # fmt: skip
 
 
 def supine_state(seed: int = 0):
@@ -64,7 +44,7 @@ def supine_state(seed: int = 0):
 
 @pytest.fixture(scope="module")
 def stand():
-    return standing_plan()
+    return static_plan("T2", T=1.0, N=10)
 
 
 @pytest.fixture(scope="module")

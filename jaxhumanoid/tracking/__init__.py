@@ -8,7 +8,7 @@ the law is smooth), and Monte-Carlo trials over perturbed bodies, laws and start
 
 from jaxhumanoid.tracking.lqr import LQRWeights, linearise, riccati, tvlqr_gains
 from jaxhumanoid.tracking.montecarlo import Criteria, Perturbation, TrackingResult, track
-from jaxhumanoid.tracking.plan import Goal, plant_and_goal, reference
+from jaxhumanoid.tracking.plan import Goal, plant_and_goal, reference, static_plan
 from jaxhumanoid.tracking.simulator import Plant, Reference, Rollout, rollout, step
 
 __all__ = [
@@ -25,6 +25,7 @@ __all__ = [
     "reference",
     "riccati",
     "rollout",
+    "static_plan",
     "step",
     "track",
     "tvlqr_gains",

@@ -14,14 +14,19 @@ torque (the plan ends at rest in static equilibrium), to see whether the body st
 from __future__ import annotations
 
 import dataclasses
+import functools
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxhumanoid.model import kinematics as kin
 from jaxhumanoid.model.params import ContactParams, FootParams, PlanarChain
-from jaxhumanoid.ocp.tasks import TASKS
-from jaxhumanoid.strategy.solution import Solution
-from jaxhumanoid.tracking.simulator import Plant, Reference
+from jaxhumanoid.ocp import transcription as tr
+from jaxhumanoid.ocp.tasks import TASKS, get_task
+from jaxhumanoid.strategy.posture import margins
+from jaxhumanoid.strategy.solution import Solution, StageStats
+from jaxhumanoid.tracking.simulator import Plant, Reference, step
 
 BODY_KEYS = ("a", "c", "m", "inertia", "g", "u_max", "ankle_height", "a0f", "a0b", "kappa", "f0", "xhat", "mu")
 
@@ -100,3 +105,66 @@ def reference(sol: Solution, substeps: int = 10, hold_s: float = 0.0) -> Referen
     U = np.concatenate([U, np.repeat(U[-1:], extra, axis=0)])
     times = t[0] + np.arange(x.shape[0]) * h / m
     return Reference(jnp.asarray(times), jnp.asarray(x), jnp.asarray(U))
+
+
+def static_plan(task="T2", T: float = 1.0, N: int = 10) -> Solution:
+    """A plan that holds a built-in task's start posture still for T seconds on N intervals (the
+    humanoid, the paper's foot, the nominal law): q constant, qd = 0, u the equilibrium torques.
+    A static equilibrium is exact in every discretisation, so it tests a controller (and the
+    checks of a trial) without the transcription error of a solved plan."""
+    task = get_task(task)
+    if isinstance(N, bool) or not isinstance(N, (int, np.integer)) or N < 1:
+        raise ValueError(f"N: expected an integer number of intervals >= 1, got {N!r}")
+    body, foot, law = PlanarChain.humanoid(), FootParams.paper(), ContactParams.nominal()
+    p = tr.default_params(task)
+    q = np.asarray(task.start, dtype=float)
+    u = np.asarray(tr.equilibrium_torques(p, jnp.asarray(q), task.active))
+    n = body.n
+    geometry = {
+        **{k: getattr(body, k) for k in ("a", "names", "c", "m", "inertia", "g", "u_max")},
+        **{k: getattr(foot, k) for k in ("ankle_height", "a0f", "a0b")},
+        **{k: getattr(law, k) for k in ("kappa", "f0", "xhat", "mu")},
+        "goal": q,
+        "goal_tolerance": task.goal_tolerance,
+    }
+    stats = StageStats("static", "Solve_Succeeded", True, 0, 0.0, 0.0, 0.0, 0.0, 0, 0)
+    return Solution(
+        task=f"hold {task.key} start",
+        scheme="static",
+        solver="none",
+        t=np.linspace(0.0, float(T), N + 1),
+        q=np.tile(q, (N + 1, 1)),
+        qd=np.zeros((N + 1, n)),
+        u=np.tile(u, (N, 1)),
+        f_contact=np.zeros((N, n, 2)),
+        gaps=np.tile(np.asarray(kin.contact_gaps(body, foot, jnp.asarray(q))), (N + 1, 1)),
+        foot_reaction=np.zeros((N, 2)),
+        foot_margins=np.tile(np.asarray(margins(body, q, task.active).foot), (N, 1)),
+        objective=0.0,
+        objective_terms={},
+        stages=[stats],
+        active=task.active,
+        geometry=geometry,
+    )
+
+
+def interval_defects(sol: Solution, substeps: int) -> np.ndarray:
+    """How far the plan is from the simulator, interval by interval: from each node k (the plan's
+    state and torque u_k) ``substeps`` simulator steps of h / substeps, against the plan's node
+    k + 1. Returns (N, 2): the largest angle error (rad) and rate error (rad/s) per interval. With
+    substeps = 1 this is the transcription's own residual (zero up to the solver's tolerance); as
+    substeps grows it tends to the plan's local error against the exact dynamics."""
+    m = check_substeps(substeps)
+    plant, _ = plant_and_goal(sol)
+    x = np.c_[sol.q, sol.qd]
+    h = float(sol.t[1] - sol.t[0])
+    defect = _defects(plant, tuple(sol.active), h / m, m, jnp.asarray(x[:-1]), jnp.asarray(sol.u))
+    err = np.abs(np.asarray(defect) - x[1:])
+    n = sol.n_links
+    return np.stack([err[:, :n].max(axis=1), err[:, n:].max(axis=1)], axis=1)
+
+
+@functools.partial(jax.jit, static_argnums=(1, 3))
+def _defects(plant: Plant, active: tuple, dt, m: int, x, u):
+    one = lambda x0, uk: jax.lax.fori_loop(0, m, lambda _, xx: step(plant, active, dt, xx, uk)[0], x0)  # noqa: E731
+    return jax.vmap(one)(x, u)
