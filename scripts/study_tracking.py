@@ -3,13 +3,15 @@
     python scripts/study_tracking.py [--tasks T1 T2 T3 T4] [--trials 100] [--seed 0] [--plans DIR]
         [--out docs/tracking.json] [--defects]
 
+The tables are copied into docs/tracking.md, which explains them.
+
 Each task is solved with the defaults (A,F+C,2S, N = 100, IPOPT) into ``--plans``/Tk (reused when
 a solution is already there), then ``jaxhumanoid.tracking.track`` runs ``--trials`` perturbed
 executions at the default perturbation, open loop and closed loop, as one batch each. Writes the
-JSON (rates, failure reasons, timings) and a markdown table next to it (``.md``); rows of tasks
+JSON (rates, failure reasons, timings) and a markdown table next to it (``tracking_table.md``); rows of tasks
 not run this time are kept from an existing ``--out``. ``--defects`` instead measures how far each
 plan is from the simulator interval by interval (``tracking.plan.interval_defects``) and adds it to
-the rows (and a table to ``.defects.md``).
+the rows (and a table to ``tracking_defects.md``).
 """
 
 from __future__ import annotations
@@ -91,7 +93,7 @@ def write_defects(args, rows, out: pathlib.Path) -> None:
         print(task, by_task[task]["defects_rad"], flush=True)
     rows = sorted(by_task.values(), key=lambda r: r["task"])
     out.write_text(json.dumps(rows, indent=2) + "\n")
-    (out.with_suffix(".defects.md")).write_text(defects_markdown(rows))
+    out.with_name(out.stem + "_defects.md").write_text(defects_markdown(rows))
 
 
 def defects_markdown(rows) -> str:
@@ -133,7 +135,7 @@ def main() -> None:
         rows = sorted([r for r in rows if r["task"] != task] + [row], key=lambda r: r["task"])
         print(markdown([row]), flush=True)
         out.write_text(json.dumps(rows, indent=2) + "\n")
-        out.with_suffix(".md").write_text(markdown(rows))
+        out.with_name(out.stem + "_table.md").write_text(markdown(rows))
 
 
 if __name__ == "__main__":

@@ -5,7 +5,8 @@ Each trial draws (uniformly, from one seeded generator) link masses and lengths 
 kappa and f0 scaled by 1 +- ``contact``, mu by 1 +- ``friction``, a start posture moved by up to
 ``start_rad`` per joint and then put back into static equilibrium for the *perturbed* body and law
 (``strategy.posture``: kept when it already keeps the foot steady with margin, else the nearest
-such posture), and Gaussian torque noise of ``torque_noise_Nm`` per joint, held over each plan interval.
+such posture; a draw whose body and law can hold none near it is drawn again and counted in
+``rejected_draws``), and Gaussian torque noise of ``torque_noise_Nm`` per joint, held over each plan interval.
 Both policies run on the same draws, all trials as one ``vmap`` batch; the gains are computed once,
 for the nominal body (the controller does not know the perturbation).
 
@@ -108,31 +109,41 @@ def perturbed_plant(plant: Plant, d: Draw) -> Plant:
     return Plant(model, plant.foot, contact)
 
 
-def _seat(plant: Plant, q_guess, q_nominal, active) -> tuple[np.ndarray, bool]:
+def _seat(plant: Plant, q_guess, active) -> tuple[np.ndarray, bool]:
     """q_guess when it is a static equilibrium with the foot steady for the plant, else the nearest
-    such posture to q_guess, else (none found near it) the nearest to the nominal start q_nominal."""
+    such posture (``find_equilibrium`` raises a ValueError when there is none near q_guess)."""
     if margins(plant.model, q_guess, active, contact=plant.contact, foot=plant.foot).ok:
         return np.asarray(q_guess), False
-    try:
-        return find_equilibrium(plant.model, q_guess, active, contact=plant.contact, foot=plant.foot).q, True
-    except ValueError:
-        return find_equilibrium(plant.model, q_nominal, active, contact=plant.contact, foot=plant.foot).q, True
+    return find_equilibrium(plant.model, q_guess, active, contact=plant.contact, foot=plant.foot).q, True
 
 
-def draw_trials(plant: Plant, q_start, active, trials: int, perturbation: Perturbation, seed: int) -> list[Draw]:
-    """``trials`` draws from the generator of ``seed`` (the first trial is always unperturbed)."""
+MAX_REJECTED_PER_TRIAL = 10
+
+
+def draw_trials(plant: Plant, q_start, active, trials: int, perturbation: Perturbation, seed: int):
+    """``trials`` draws from the generator of ``seed`` (the first trial is always unperturbed), and
+    the number of draws rejected because the perturbed body and law can hold no start posture near
+    the moved one with the foot steady (they are drawn again)."""
     rng = np.random.default_rng(seed)
     n, p = plant.model.n, perturbation
-    out = []
-    for i in range(trials):
-        u = lambda k, w: np.ones(k) + (0.0 if i == 0 else w) * rng.uniform(-1, 1, k)  # noqa: E731
+    out: list[Draw] = []
+    rejected = 0
+    while len(out) < trials:
+        w = 0.0 if not out else 1.0
+        u = lambda k, h: np.ones(k) + w * h * rng.uniform(-1, 1, k)  # noqa: E731
         sm, sl, (sk, sf), (smu,) = u(n, p.mass_length), u(n, p.mass_length), u(2, p.contact), u(1, p.friction)
-        offset = np.zeros(n) if i == 0 else p.start_rad * rng.uniform(-1, 1, n)
+        offset = w * p.start_rad * rng.uniform(-1, 1, n)
         d = Draw(sm.tolist(), sl.tolist(), float(sk), float(sf), float(smu), offset.tolist(), [], False)
-        q0, moved = _seat(perturbed_plant(plant, d), np.asarray(q_start) + offset, np.asarray(q_start), active)
+        try:
+            q0, moved = _seat(perturbed_plant(plant, d), np.asarray(q_start) + offset, active)
+        except ValueError:
+            rejected += 1
+            if rejected > MAX_REJECTED_PER_TRIAL * trials or not out:
+                raise
+            continue
         d.start_q, d.start_reseated = q0.tolist(), bool(moved)
         out.append(d)
-    return out
+    return out, rejected
 
 
 def _stack(plants: list[Plant]) -> Plant:
@@ -200,6 +211,7 @@ class TrackingResult:
     perturbation: dict
     criteria: dict
     weights: dict
+    rejected_draws: int
     open_loop_success_rate: float
     closed_loop_success_rate: float
     records: list[dict]
@@ -286,7 +298,7 @@ def track(
         return out
 
     gains = stage("TVLQR gains", lambda: _gains(plant, active, ref, weights))
-    draws = stage(
+    draws, rejected = stage(
         "draws and start equilibria", lambda: draw_trials(plant, sol.q[0], active, trials, perturbation, seed)
     )
     plants = _stack([perturbed_plant(plant, d) for d in draws])
@@ -320,6 +332,7 @@ def track(
         perturbation=dataclasses.asdict(perturbation),
         criteria=dataclasses.asdict(criteria),
         weights=dataclasses.asdict(weights),
+        rejected_draws=rejected,
         open_loop_success_rate=rate("open_loop"),
         closed_loop_success_rate=rate("closed_loop"),
         records=records,
