@@ -1,7 +1,7 @@
 """Study: do the plans of T1-T4 execute? Open loop against TVLQR over perturbed bodies and starts.
 
     python scripts/study_tracking.py [--tasks T1 T2 T3 T4] [--trials 100] [--seed 0] [--plans DIR]
-        [--out docs/tracking.json] [--defects]
+        [--out docs/tracking.json] [--lqr Q_RAD QD_RAD_S U_NM] [--defects]
 
 The tables are copied into docs/tracking.md, which explains them.
 
@@ -26,7 +26,7 @@ import numpy as np
 
 import jaxhumanoid as jh
 from jaxhumanoid.outputs.progress import Progress
-from jaxhumanoid.tracking import track
+from jaxhumanoid.tracking import LQRWeights, track
 from jaxhumanoid.tracking.plan import interval_defects
 
 
@@ -46,6 +46,8 @@ def summary(res, wall_s: float) -> dict:
     return {
         "task": res.task,
         "trials": res.trials,
+        "lqr_weights": res.weights,
+        "rejected_draws": res.rejected_draws,
         "open_loop_success_rate": res.open_loop_success_rate,
         "closed_loop_success_rate": res.closed_loop_success_rate,
         "reasons": reasons,
@@ -119,6 +121,13 @@ def main() -> None:
     parser.add_argument("--plans", default="out/tracking_plans")
     parser.add_argument("--out", default="docs/tracking.json")
     parser.add_argument(
+        "--lqr",
+        nargs=3,
+        type=float,
+        metavar=("Q_RAD", "QD_RAD_S", "U_NM"),
+        help="TVLQR acceptable deviations (default those of LQRWeights)",
+    )
+    parser.add_argument(
         "--defects", action="store_true", help="instead: the plans' interval defects against the simulator only"
     )
     args = parser.parse_args()
@@ -130,7 +139,8 @@ def main() -> None:
     for task in args.tasks:
         src = plan(task, pathlib.Path(args.plans))
         t0 = time.perf_counter()
-        res = track(src, trials=args.trials, seed=args.seed, progress=Progress(4))
+        weights = LQRWeights() if args.lqr is None else LQRWeights(*args.lqr)
+        res = track(src, trials=args.trials, seed=args.seed, weights=weights, progress=Progress(4))
         row = summary(res, time.perf_counter() - t0)
         rows = sorted([r for r in rows if r["task"] != task] + [row], key=lambda r: r["task"])
         print(markdown([row]), flush=True)
