@@ -1,7 +1,7 @@
 """The package's layers hold: data flows one way, with no cycles and no hidden imports.
 
     runtime, pytree, progress -> model -> ocp -> derivatives -> solvers -> validation -> strategy -> diff
-    -> studies -> outputs
+    -> tracking -> studies -> outputs
 
 A module may import its own layer and the layers below it, never one above. Imports are read
 from the source (``ast``), so the test also sees imports inside functions, which may name only
@@ -26,6 +26,7 @@ LAYERS = (
     "validation",
     "strategy",
     "diff",
+    "tracking",
     "studies",
     "outputs",
 )

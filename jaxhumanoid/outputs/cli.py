@@ -1,4 +1,4 @@
-"""Command line: ``jaxhumanoid solve | table2 | tasks | posture | animate | check | sweep``
+"""Command line: ``jaxhumanoid solve | table2 | tasks | posture | animate | track | check | sweep``
 (also ``python -m jaxhumanoid``)."""
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from jaxhumanoid.diff import sensitivity_table
 from jaxhumanoid.model.params import PlanarChain
 from jaxhumanoid.ocp.scheme import TABLE2_SCHEMES
 from jaxhumanoid.ocp.tasks import TASKS, get_task
-from jaxhumanoid.outputs import plots, timeline
+from jaxhumanoid.outputs import plots, timeline, tracking_plots
 from jaxhumanoid.outputs.animation import animate
 from jaxhumanoid.progress import IterationLine, Progress
 from jaxhumanoid.runtime import enable_compilation_cache
@@ -27,6 +27,7 @@ from jaxhumanoid.strategy.solution import Solution
 from jaxhumanoid.strategy.solve import solve
 from jaxhumanoid.strategy.taskfile import load_task_file
 from jaxhumanoid.studies import ENGINES, sweep
+from jaxhumanoid.tracking import montecarlo
 from jaxhumanoid.validation import checks
 
 # Table II of the paper: (iterations, seconds) per task and scheme; None = failed.
@@ -245,6 +246,25 @@ def cmd_animate(args) -> int:
     return 0
 
 
+def cmd_track(args) -> int:
+    sol = montecarlo.as_solution(args.dir)
+    out = writable_dir(args.out or args.dir)
+    progress = Progress(4 + (0 if args.no_figures else 1), quiet=args.quiet)
+    res = montecarlo.track(sol, trials=args.trials, seed=args.seed, substeps=args.substeps, progress=progress)
+    path = res.save(out)
+    if not args.no_figures:
+        progress.start("figure and animation")
+        tracking_plots.plot_tracking(res, sol, path=out / "tracking.png")
+        tracking_plots.animate_trial(res, sol, out / "tracking.gif")
+        progress.finish()
+    if not args.quiet:
+        print(
+            f"{res.task}: {res.trials} trials, success open loop {res.open_loop_success_rate:.0%}, "
+            f"closed loop (TVLQR) {res.closed_loop_success_rate:.0%} -> {path}"
+        )
+    return 0
+
+
 def cmd_check(args) -> int:
     tasks = [args.task] if args.task else ["T1", "T2", "T3", "T4"]
     if args.sensitivities:
@@ -351,6 +371,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--name", default="animation.gif")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_animate)
+
+    p = sub.add_parser("track", help="execute a saved plan in simulation: open loop and TVLQR over perturbed trials")
+    p.add_argument("dir", help="directory written by `jaxhumanoid solve`")
+    p.add_argument("--trials", type=int, default=100, help="perturbed trials (default 100; trial 0 is unperturbed)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--substeps", type=int, default=10, help="simulator steps per plan interval (default 10)")
+    p.add_argument("--out", default=None, help="where tracking.json, .png and .gif go (default DIR)")
+    p.add_argument("--no-figures", action="store_true", help="write tracking.json only")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=cmd_track)
 
     p = sub.add_parser("check", help="cross-validate JAX against CasADi and finite differences")
     p.add_argument("--task", default=None, help="one task (default: all four)")

@@ -14,7 +14,10 @@ Shapes (N intervals, N + 1 nodes; a chain of n links with joints O_1..O_n, named
     warm_start   optional dict {t, q}: the stage-1 solution interpolated onto t (2S only)
     geometry     link lengths "a" (n,), joint "names" (n strings), foot "ankle_height", "a0f",
                  "a0b", friction "mu", link masses "m" (n,) and gravity "g": what the figures and
-                 the peak loads need without the model
+                 the peak loads need without the model; and what rebuilds the body, the law and the
+                 goal box for a simulation (``jaxhumanoid.tracking``): "c", "inertia", "u_max" (n,),
+                 "kappa", "f0", "xhat", "goal" (n,), "goal_tolerance" (files saved before these
+                 keys existed lack them)
 """
 
 from __future__ import annotations

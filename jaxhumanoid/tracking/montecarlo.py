@@ -1,0 +1,345 @@
+"""Monte-Carlo execution of a plan: perturbed bodies, laws and starts, open loop against TVLQR.
+
+Each trial draws (uniformly, from one seeded generator) link masses and lengths scaled by
+1 +- ``mass_length`` (lengths scale a and c together; inertia scales with mass x length^2),
+kappa and f0 scaled by 1 +- ``contact``, mu by 1 +- ``friction``, a start posture moved by up to
+``start_rad`` per joint and then put back into static equilibrium for the *perturbed* body and law
+(``strategy.posture``: kept when it already keeps the foot steady with margin, else the nearest
+such posture; a draw whose body and law can hold none near it is drawn again and counted in
+``rejected_draws``), and Gaussian torque noise of ``torque_noise_Nm`` per joint, held over each plan interval.
+Both policies run on the same draws, all trials as one ``vmap`` batch; the gains are computed once,
+for the nominal body (the controller does not know the perturbation).
+
+A trial succeeds when, at the end of the plan plus the hold, every joint angle lies within the goal
+box widened by ``goal_slack`` (the plans end on the box's faces, so an unwidened box turns any
+error into a coin flip), and at every step the foot stays steady and no joint is deeper than
+``max_depth`` below the ground. The steady-foot test is (5) with the weight of the foot itself
+added to f_n0 (``foot_mass_fraction`` of the body mass, Winter's 1.45 %): the model's foot is
+massless, so a real foot is not lifted by the first newton of pull. The first failure names the
+reason: ``foot lifts`` (5a), ``foot slips`` (5b), ``foot tips`` (5c), ``segment through the ground``,
+``integrator failed`` (a Newton solve that did not converge), else ``goal missed``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+import pathlib
+import time
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxhumanoid.model.params import ContactParams
+from jaxhumanoid.strategy.posture import find_equilibrium, margins
+from jaxhumanoid.strategy.solution import Solution
+from jaxhumanoid.tracking.lqr import DEFAULT_WEIGHTS, LQRWeights, tvlqr_gains
+from jaxhumanoid.tracking.plan import Goal, check_substeps, plant_and_goal, reference
+from jaxhumanoid.tracking.simulator import Plant, Reference, Rollout, rollout
+
+FOOT_REASONS = ("foot lifts", "foot slips", "foot slips", "foot tips", "foot tips")
+RESIDUAL_FAIL = 1e-6  # scaled Newton residual above which a step counts as not converged
+
+
+@dataclasses.dataclass(frozen=True)
+class Perturbation:
+    """Half-widths of the uniform draws (fractions), the start offset (rad) and the torque noise
+    (N m, standard deviation per joint, held over each plan interval). ``Perturbation.zero()`` draws nothing."""
+
+    mass_length: float = 0.10
+    contact: float = 0.50
+    friction: float = 0.30
+    start_rad: float = 0.02
+    torque_noise_Nm: float = 5.0
+
+    def __post_init__(self):
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v < 0:
+                raise ValueError(f"Perturbation.{f.name}: expected a finite number >= 0, got {v!r}")
+        for name in ("mass_length", "contact", "friction"):
+            if getattr(self, name) >= 1:
+                raise ValueError(f"Perturbation.{name}: expected a fraction below 1, got {getattr(self, name)!r}")
+
+    @classmethod
+    def zero(cls) -> Perturbation:
+        return cls(0.0, 0.0, 0.0, 0.0, 0.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class Criteria:
+    """What success means (module docstring): goal_slack (rad), max_depth (m), foot_mass_fraction."""
+
+    goal_slack: float = 0.02
+    max_depth: float = 0.10
+    foot_mass_fraction: float = 0.0145
+
+    def __post_init__(self):
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v < 0:
+                raise ValueError(f"Criteria.{f.name}: expected a finite number >= 0, got {v!r}")
+
+
+@dataclasses.dataclass
+class Draw:
+    """The draws of one trial (scales are factors on the nominal values)."""
+
+    mass_scale: list[float]
+    length_scale: list[float]
+    kappa_scale: float
+    f0_scale: float
+    mu_scale: float
+    start_offset: list[float]
+    start_q: list[float]
+    start_reseated: bool
+
+
+def perturbed_plant(plant: Plant, d: Draw) -> Plant:
+    """The nominal plant with the trial's scales applied (inertia ~ mass x length^2)."""
+    b, law = plant.model, plant.contact
+    sm, sl = np.asarray(d.mass_scale), np.asarray(d.length_scale)
+    model = dataclasses.replace(b, a=b.a * sl, c=b.c * sl, m=b.m * sm, inertia=b.inertia * sm * sl**2)
+    contact = ContactParams(
+        kappa=law.kappa * d.kappa_scale, f0=law.f0 * d.f0_scale, xhat=law.xhat, mu=law.mu * d.mu_scale
+    )
+    return Plant(model, plant.foot, contact)
+
+
+def _seat(plant: Plant, q_guess, active) -> tuple[np.ndarray, bool]:
+    """q_guess when it is a static equilibrium with the foot steady for the plant, else the nearest
+    such posture (``find_equilibrium`` raises a ValueError when there is none near q_guess)."""
+    if margins(plant.model, q_guess, active, contact=plant.contact, foot=plant.foot).ok:
+        return np.asarray(q_guess), False
+    return find_equilibrium(plant.model, q_guess, active, contact=plant.contact, foot=plant.foot).q, True
+
+
+MAX_REJECTED_PER_TRIAL = 10
+
+
+def draw_trials(plant: Plant, q_start, active, trials: int, perturbation: Perturbation, seed: int):
+    """``trials`` draws from the generator of ``seed`` (the first trial is always unperturbed), and
+    the number of draws rejected because the perturbed body and law can hold no start posture near
+    the moved one with the foot steady (they are drawn again)."""
+    rng = np.random.default_rng(seed)
+    n, p = plant.model.n, perturbation
+    out: list[Draw] = []
+    rejected = 0
+    while len(out) < trials:
+        w = 0.0 if not out else 1.0
+        u = lambda k, h: np.ones(k) + w * h * rng.uniform(-1, 1, k)  # noqa: E731
+        sm, sl, (sk, sf), (smu,) = u(n, p.mass_length), u(n, p.mass_length), u(2, p.contact), u(1, p.friction)
+        offset = w * p.start_rad * rng.uniform(-1, 1, n)
+        d = Draw(sm.tolist(), sl.tolist(), float(sk), float(sf), float(smu), offset.tolist(), [], False)
+        try:
+            q0, moved = _seat(perturbed_plant(plant, d), np.asarray(q_start) + offset, active)
+        except ValueError:
+            rejected += 1
+            if rejected > MAX_REJECTED_PER_TRIAL * trials or not out:
+                raise
+            continue
+        d.start_q, d.start_reseated = q0.tolist(), bool(moved)
+        out.append(d)
+    return out, rejected
+
+
+def _stack(plants: list[Plant]) -> Plant:
+    return jax.tree.map(lambda *xs: jnp.stack([jnp.asarray(x, dtype=jnp.float64) for x in xs]), *plants)
+
+
+@functools.partial(jax.jit, static_argnums=1)
+def batch_rollout(plants: Plant, active: tuple, ref: Reference, x0, gains, noise, u_max) -> Rollout:
+    """``rollout`` over a batch of plants (stacked leaves), starts (K, 2n) and noise (K, M, n)."""
+    return jax.vmap(lambda pl, x, w: rollout(pl, active, ref, x, gains, w, u_max))(plants, x0, noise)
+
+
+_gains = jax.jit(tvlqr_gains, static_argnums=(1, 3))
+
+
+def weighted_foot_margins(foot_margins, plant: Plant, criteria: Criteria) -> np.ndarray:
+    """The (5) products (..., 5) with the foot's own weight added to f_n0 (module docstring)."""
+    b = plant.model
+    weight = criteria.foot_mass_fraction * float(np.sum(np.asarray(b.m))) * float(b.g)
+    mu = float(plant.contact.mu)
+    return np.asarray(foot_margins) + weight * np.array([1.0, mu, mu, float(plant.foot.a0f), float(plant.foot.a0b)])
+
+
+def tightest_foot_margin(foot_margins, plant: Plant, criteria: Criteria) -> np.ndarray:
+    """The smallest of the weighted (5) products per step in units of body weight M g (the
+    centre-of-pressure rows divided by the sole's half-lengths too), shape (...,): < 0 is a fall."""
+    b, f = plant.model, plant.foot
+    unit = float(np.sum(np.asarray(b.m))) * float(b.g) * np.array([1.0, 1.0, 1.0, float(f.a0f), float(f.a0b)])
+    return np.min(weighted_foot_margins(foot_margins, plant, criteria) / unit, axis=-1)
+
+
+def judge(r: Rollout, t, plant: Plant, goal: Goal, criteria: Criteria) -> dict[str, Any]:
+    """Success, final error (rad, max over joints of |q(end) - goal|), whether the goal box was
+    reached whatever happened on the way (``goal_reached``) and the first failure (its reason and
+    time) of one trial's rollout (numpy arrays of one trial) on its own plant."""
+    foot_bad = weighted_foot_margins(r.foot_margins, plant, criteria) < 0  # (M, 5)
+    events = {
+        "integrator failed": np.asarray(r.residual) > RESIDUAL_FAIL,
+        "segment through the ground": np.any(np.asarray(r.gaps) < -criteria.max_depth, axis=1),
+        **{reason: np.zeros(foot_bad.shape[0], bool) for reason in FOOT_REASONS},
+    }
+    for row, reason in enumerate(FOOT_REASONS):
+        events[reason] = events[reason] | foot_bad[:, row]
+    first = {k: int(np.argmax(v)) for k, v in events.items() if np.any(v)}
+    q_end = np.asarray(r.x)[-1, : goal.q.size]
+    final_error = float(np.max(np.abs(q_end - goal.q)))
+    reached = bool(final_error <= goal.tolerance + criteria.goal_slack)
+    out = {"success": reached and not first, "final_error": final_error, "goal_reached": reached}
+    if first:
+        reason = min(first, key=lambda k: first[k])
+        return {**out, "reason": reason, "t_fail": float(t[first[reason] + 1])}
+    return {**out, "reason": None if reached else "goal missed", "t_fail": None}
+
+
+@dataclasses.dataclass
+class TrackingResult:
+    """tracking.json's record, plus the batch arrays the figures need (not written to JSON):
+    open_loop / closed_loop rollouts with leading trial axis, the reference and the gains."""
+
+    task: str
+    trials: int
+    seed: int
+    substeps: int
+    hold_s: float
+    perturbation: dict
+    criteria: dict
+    weights: dict
+    rejected_draws: int
+    open_loop_success_rate: float
+    closed_loop_success_rate: float
+    records: list[dict]
+    timing_s: dict
+    reference: Reference = dataclasses.field(repr=False)
+    open_loop: Rollout = dataclasses.field(repr=False)
+    closed_loop: Rollout = dataclasses.field(repr=False)
+    goal: Goal = dataclasses.field(repr=False)
+    plant: Plant = dataclasses.field(repr=False)
+
+    def trial_plant(self, trial: int) -> Plant:
+        """The perturbed plant of one trial."""
+        return perturbed_plant(self.plant, Draw(**self.records[trial]["perturbation"]))
+
+    def to_json(self) -> dict:
+        keys = [f.name for f in dataclasses.fields(self) if f.repr]
+        return {k: getattr(self, k) for k in keys}
+
+    def save(self, out_dir) -> pathlib.Path:
+        out = pathlib.Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        path = out / "tracking.json"
+        path.write_text(json.dumps(self.to_json(), indent=2) + "\n")
+        return path
+
+
+def _check_int(name: str, value, low: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
+        raise ValueError(f"{name}: expected an integer >= {low}, got {value!r}")
+    return int(value)
+
+
+def as_solution(solution_or_dir) -> Solution:
+    if isinstance(solution_or_dir, Solution):
+        return solution_or_dir
+    path = pathlib.Path(solution_or_dir)
+    if not (path / "solution.npz").is_file():
+        what = "has no solution.npz" if path.is_dir() else "is not a directory"
+        raise ValueError(
+            f"solution: {str(path)!r} {what}; give a Solution or a directory written by `jaxhumanoid solve`"
+        )
+    return Solution.load(path)
+
+
+def track(
+    solution_or_dir,
+    trials: int = 100,
+    seed: int = 0,
+    substeps: int = 10,
+    hold_s: float = 0.5,
+    perturbation: Perturbation = Perturbation(),
+    criteria: Criteria = Criteria(),
+    weights: LQRWeights = DEFAULT_WEIGHTS,
+    progress=None,
+) -> TrackingResult:
+    """Run ``trials`` perturbed executions of a plan open loop and under TVLQR (module docstring).
+
+    ``solution_or_dir``: a ``Solution`` or a directory written by ``jaxhumanoid solve``;
+    ``substeps``: simulator steps per plan interval; ``hold_s``: seconds the final state is held
+    after the horizon; ``progress``: an ``jaxhumanoid.progress.Progress``-like object with
+    ``start(label)`` / ``finish(message)`` (or None). Every argument is checked before any work.
+    """
+    trials, seed = _check_int("trials", trials, 1), _check_int("seed", seed, 0)
+    substeps = check_substeps(substeps)
+    for name, value, cls in (("perturbation", perturbation, Perturbation), ("criteria", criteria, Criteria)):
+        if not isinstance(value, cls):
+            raise ValueError(f"{name}: expected a {cls.__name__}, got {type(value).__name__}")
+    if not isinstance(weights, LQRWeights):
+        raise ValueError(f"weights: expected an LQRWeights, got {type(weights).__name__}")
+    sol = as_solution(solution_or_dir)
+    plant, goal = plant_and_goal(sol)
+    ref = reference(sol, substeps, hold_s)
+    active, M, n = tuple(sol.active), ref.u.shape[0], plant.model.n
+    timing: dict[str, float] = {}
+
+    def stage(label, fn):
+        if progress is not None:
+            progress.start(label)
+        t0 = time.perf_counter()
+        out = jax.block_until_ready(fn())
+        timing[label] = time.perf_counter() - t0
+        if progress is not None:
+            progress.finish()
+        return out
+
+    gains = stage("TVLQR gains", lambda: _gains(plant, active, ref, weights))
+    draws, rejected = stage(
+        "draws and start equilibria", lambda: draw_trials(plant, sol.q[0], active, trials, perturbation, seed)
+    )
+    plants = _stack([perturbed_plant(plant, d) for d in draws])
+    x0 = jnp.asarray([np.r_[d.start_q, np.zeros(n)] for d in draws])
+    held = np.random.default_rng(seed + 1).standard_normal((trials, -(-M // substeps), n))
+    held[0] = 0.0
+    noise = jnp.asarray(np.repeat(held, substeps, axis=1)[:, :M] * perturbation.torque_noise_Nm)
+    u_max = jnp.asarray(plant.model.u_max)
+    open_r = stage("open loop", lambda: batch_rollout(plants, active, ref, x0, jnp.zeros_like(gains), noise, u_max))
+    closed_r = stage("closed loop", lambda: batch_rollout(plants, active, ref, x0, gains, noise, u_max))
+    t = np.asarray(ref.t)
+    records: list[dict[str, Any]] = []
+    for i, d in enumerate(draws):
+        pick = lambda r: Rollout(*(np.asarray(a[i]) for a in r))  # type: ignore[arg-type]  # noqa: E731  # numpy views of one trial
+        trial_plant = perturbed_plant(plant, d)
+        records.append(
+            {
+                "trial": i,
+                "perturbation": dataclasses.asdict(d),
+                "open_loop": judge(pick(open_r), t, trial_plant, goal, criteria),
+                "closed_loop": judge(pick(closed_r), t, trial_plant, goal, criteria),
+            }
+        )
+    rate = lambda key: float(np.mean([r[key]["success"] for r in records]))  # noqa: E731
+    return TrackingResult(
+        task=sol.task,
+        trials=trials,
+        seed=seed,
+        substeps=substeps,
+        hold_s=float(hold_s),
+        perturbation=dataclasses.asdict(perturbation),
+        criteria=dataclasses.asdict(criteria),
+        weights=dataclasses.asdict(weights),
+        rejected_draws=rejected,
+        open_loop_success_rate=rate("open_loop"),
+        closed_loop_success_rate=rate("closed_loop"),
+        records=records,
+        timing_s=timing,
+        reference=ref,
+        open_loop=open_r,
+        closed_loop=closed_r,
+        goal=goal,
+        plant=plant,
+    )

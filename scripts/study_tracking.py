@@ -1,0 +1,152 @@
+"""Study: do the plans of T1-T4 execute? Open loop against TVLQR over perturbed bodies and starts.
+
+    python scripts/study_tracking.py [--tasks T1 T2 T3 T4] [--trials 100] [--seed 0] [--plans DIR]
+        [--out docs/tracking.json] [--lqr Q_RAD QD_RAD_S U_NM] [--defects]
+
+The tables are copied into docs/tracking.md, which explains them.
+
+Each task is solved with the defaults (A,F+C,2S, N = 100, IPOPT) into ``--plans``/Tk (reused when
+a solution is already there), then ``jaxhumanoid.tracking.track`` runs ``--trials`` perturbed
+executions at the default perturbation, open loop and closed loop, as one batch each. Writes the
+JSON (rates, failure reasons, timings) and a markdown table next to it (``tracking_table.md``); rows of tasks
+not run this time are kept from an existing ``--out``. ``--defects`` instead measures how far each
+plan is from the simulator interval by interval (``tracking.plan.interval_defects``) and adds it to
+the rows (and a table to ``tracking_defects.md``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import json
+import pathlib
+import time
+
+import numpy as np
+
+import jaxhumanoid as jh
+from jaxhumanoid.progress import Progress
+from jaxhumanoid.tracking import LQRWeights, track
+from jaxhumanoid.tracking.plan import interval_defects
+
+
+def plan(task: str, plans: pathlib.Path) -> pathlib.Path:
+    out = plans / task
+    if not (out / "solution.npz").is_file():
+        jh.solve(task).save(out)
+    return out
+
+
+def summary(res, wall_s: float) -> dict:
+    reasons = {
+        key: dict(collections.Counter(r[key]["reason"] or "success" for r in res.records))
+        for key in ("open_loop", "closed_loop")
+    }
+    first_fail = sorted(r["closed_loop"]["t_fail"] for r in res.records if r["closed_loop"]["t_fail"] is not None)
+    return {
+        "task": res.task,
+        "trials": res.trials,
+        "lqr_weights": res.weights,
+        "rejected_draws": res.rejected_draws,
+        "open_loop_success_rate": res.open_loop_success_rate,
+        "closed_loop_success_rate": res.closed_loop_success_rate,
+        "reasons": reasons,
+        "closed_loop_goal_reached_rate": sum(r["closed_loop"]["goal_reached"] for r in res.records) / res.trials,
+        "closed_loop_median_t_fail_s": first_fail[len(first_fail) // 2] if first_fail else None,
+        "wall_s": wall_s,
+        "trials_per_s": 2 * res.trials / wall_s,
+        "timing_s": res.timing_s,
+    }
+
+
+def markdown(rows) -> str:
+    lines = [
+        "| task | trials | open loop success | closed loop success | closed loop: first failures | median time of "
+        "first failure (s) | closed loop at the goal at the end | wall (s) | rollouts/s |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        fails = ", ".join(f"{k} {v}" for k, v in sorted(r["reasons"]["closed_loop"].items()) if k != "success")
+        t_fail = "-" if r["closed_loop_median_t_fail_s"] is None else f"{r['closed_loop_median_t_fail_s']:.2f}"
+        lines.append(
+            f"| {r['task']} | {r['trials']} | {r['open_loop_success_rate']:.0%} | {r['closed_loop_success_rate']:.0%} "
+            f"| {fails or '-'} | {t_fail} | {r['closed_loop_goal_reached_rate']:.0%} | {r['wall_s']:.0f} "
+            f"| {r['trials_per_s']:.2f} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+DEFECT_SUBSTEPS = (1, 10, 40)
+
+
+def defects(sol) -> dict:
+    """Quantiles (50, 90, 99, 100 %) of the per-interval angle defect (rad) at each DEFECT_SUBSTEPS."""
+    return {
+        str(m): np.quantile(interval_defects(sol, m)[:, 0], [0.5, 0.9, 0.99, 1.0]).tolist() for m in DEFECT_SUBSTEPS
+    }
+
+
+def write_defects(args, rows, out: pathlib.Path) -> None:
+    by_task = {r["task"]: r for r in rows}
+    for task in args.tasks:
+        by_task.setdefault(task, {"task": task})["defects_rad"] = defects(
+            jh.Solution.load(plan(task, pathlib.Path(args.plans)))
+        )
+        print(task, by_task[task]["defects_rad"], flush=True)
+    rows = sorted(by_task.values(), key=lambda r: r["task"])
+    out.write_text(json.dumps(rows, indent=2) + "\n")
+    out.with_name(out.stem + "_defects.md").write_text(defects_markdown(rows))
+
+
+def defects_markdown(rows) -> str:
+    lines = [
+        "| task | "
+        + " | ".join(f"{m} substep{'s' if m > 1 else ''}: median / 99 % / max" for m in DEFECT_SUBSTEPS)
+        + " |",
+        "|---|" + "---|" * len(DEFECT_SUBSTEPS),
+    ]
+    for r in rows:
+        if "defects_rad" in r:
+            d = r["defects_rad"]
+            cells = [f"{d[str(m)][0]:.1e} / {d[str(m)][2]:.2f} / {d[str(m)][3]:.2f}" for m in DEFECT_SUBSTEPS]
+            lines.append(f"| {r['task']} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--tasks", nargs="*", default=["T1", "T2", "T3", "T4"])
+    parser.add_argument("--trials", type=int, default=100)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--plans", default="out/tracking_plans")
+    parser.add_argument("--out", default="docs/tracking.json")
+    parser.add_argument(
+        "--lqr",
+        nargs=3,
+        type=float,
+        metavar=("Q_RAD", "QD_RAD_S", "U_NM"),
+        help="TVLQR acceptable deviations (default those of LQRWeights)",
+    )
+    parser.add_argument(
+        "--defects", action="store_true", help="instead: the plans' interval defects against the simulator only"
+    )
+    args = parser.parse_args()
+    out = pathlib.Path(args.out)
+    rows = json.loads(out.read_text()) if out.is_file() else []  # rows of other tasks are kept
+    if args.defects:
+        write_defects(args, rows, out)
+        return
+    for task in args.tasks:
+        src = plan(task, pathlib.Path(args.plans))
+        t0 = time.perf_counter()
+        weights = LQRWeights() if args.lqr is None else LQRWeights(*args.lqr)
+        res = track(src, trials=args.trials, seed=args.seed, weights=weights, progress=Progress(4))
+        row = summary(res, time.perf_counter() - t0)
+        rows = sorted([r for r in rows if r["task"] != task] + [row], key=lambda r: r["task"])
+        print(markdown([row]), flush=True)
+        out.write_text(json.dumps(rows, indent=2) + "\n")
+        out.with_name(out.stem + "_table.md").write_text(markdown(rows))
+
+
+if __name__ == "__main__":
+    main()
