@@ -9,7 +9,7 @@ import pytest
 from jaxhumanoid.model.params import FootParams, PlanarChain
 from jaxhumanoid.ocp import tasks
 from jaxhumanoid.strategy.posture import MarginSpec, find_equilibrium, margins
-from jaxhumanoid.strategy.taskfile import load_task_file
+from jaxhumanoid.strategy.taskfile import load_task_file, task_files
 
 EXAMPLES = pathlib.Path(__file__).resolve().parents[1] / "examples"
 DEG = np.pi / 180
@@ -52,7 +52,7 @@ def test_bad_guess_is_rejected_by_name():
         find_equilibrium(PlanarChain.humanoid(), tasks.STANDING, (6,))
 
 
-@pytest.mark.parametrize("path", sorted(EXAMPLES.glob("*.toml")), ids=lambda p: p.stem)
+@pytest.mark.parametrize("path", task_files(EXAMPLES), ids=lambda p: p.stem)
 def test_example_task_files_load_and_pose_equilibria(path):
     tf = load_task_file(path)
     assert tf.task.n == tf.model.n and tf.settings["N"] >= 10
@@ -90,3 +90,10 @@ def test_bad_task_files_name_the_field(tmp_path, text, field):
     with pytest.raises(ValueError, match=field) as err:
         load_task_file(path)
     assert "bad.toml" in str(err.value)
+
+
+def test_task_files_of_a_folder_leave_study_specs_out():
+    names = [p.name for p in task_files(EXAMPLES)]
+    assert "T1.toml" in names and "bow_3link.toml" in names
+    assert "sweep_small.toml" not in names and (EXAMPLES / "sweep_small.toml").exists()
+    assert task_files(EXAMPLES / "no-such-folder") == []

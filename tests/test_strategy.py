@@ -20,7 +20,7 @@ def test_two_stage_converges_on_every_task(key):
 def test_failed_stage_one_retries_with_the_fallback_and_counts_every_run(monkeypatch, solver):
     calls = []
 
-    def fake_run(solver, problem, x0, options, verbose):
+    def fake_run(solver, problem, x0, options, verbose, progress=None):
         calls.append((problem.layout.N, dict(options), np.array(x0)))
         fail = problem.layout.pseudo_static and len(calls) == 1
         n, m = problem.nlp.n, problem.nlp.m

@@ -25,7 +25,7 @@ from jaxhumanoid.strategy.posture import find_equilibrium
 from jaxhumanoid.strategy.problem import GUESSES, stage_problem
 from jaxhumanoid.strategy.solution import Solution
 from jaxhumanoid.strategy.solve import solve
-from jaxhumanoid.strategy.taskfile import load_task_file
+from jaxhumanoid.strategy.taskfile import load_task_file, task_files
 from jaxhumanoid.studies import ENGINES, sweep
 from jaxhumanoid.tracking import montecarlo
 from jaxhumanoid.validation import checks
@@ -189,8 +189,7 @@ def cmd_tasks(args) -> int:
     print(f"{'task':<32} {'links':>5}  {'active':<10} source")
     for key, task in TASKS.items():
         print(f"{key + ' ' + task.name:<32} {task.n:>5}  {str(list(task.active)):<10} built in")
-    folder = pathlib.Path(args.dir)
-    for path in sorted(folder.glob("*.toml")) if folder.is_dir() else []:
+    for path in task_files(args.dir):
         tf = load_task_file(path)
         print(f"{tf.task.name:<32} {tf.model.n:>5}  {str(list(tf.task.active)):<10} {path}")
     return 0

@@ -159,6 +159,21 @@ def _check_keys(path: pathlib.Path, data: dict) -> None:
                 raise ValueError(f"{path}: [{key}] has unknown keys {unknown}; allowed: {sorted(allowed)}")
 
 
+def task_files(folder) -> list[pathlib.Path]:
+    """The task files of a folder: its ``*.toml`` files with a ``[task]`` table, sorted (study
+    specs, which list tasks instead, and unreadable files are left out)."""
+    folder = pathlib.Path(folder)
+    out = []
+    for path in sorted(folder.glob("*.toml")) if folder.is_dir() else []:
+        try:
+            data = tomllib.loads(path.read_text())
+        except (OSError, tomllib.TOMLDecodeError):
+            continue
+        if isinstance(data.get("task"), dict):
+            out.append(path)
+    return out
+
+
 def load_task_file(path) -> TaskFile:
     """Read and check a task file (see the module docstring)."""
     path = pathlib.Path(path)
