@@ -1,4 +1,5 @@
-"""Runtime set-up shared by every layer: float64 in JAX and the persistent compilation cache.
+"""Runtime set-up shared by every layer: float64 in JAX, the persistent compilation cache, and the
+checked reading of TOML inputs and making of output folders (errors that name the field).
 
 Importing this module turns on ``jax_enable_x64``: every model, transcription and solver function
 works in double precision. It is the only module that writes JAX's configuration.
@@ -8,6 +9,8 @@ from __future__ import annotations
 
 import os
 import pathlib
+import tempfile
+import tomllib
 
 import jax
 
@@ -24,3 +27,27 @@ def enable_compilation_cache(path: str | None = None) -> str:
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
     return cache
+
+
+def read_toml(path, field: str) -> dict:
+    """The TOML file ``path`` as a dict; a ValueError names ``field`` when it cannot be read and
+    the file when it is not valid TOML."""
+    path = pathlib.Path(path)
+    try:
+        return tomllib.loads(path.read_text())
+    except OSError as err:
+        raise ValueError(f"{field}: cannot read {str(path)!r} ({err.strerror or err})") from err
+    except tomllib.TOMLDecodeError as err:
+        raise ValueError(f"{path}: not valid TOML ({err})") from err
+
+
+def writable_dir(path, field: str = "--out") -> pathlib.Path:
+    """``path`` as a directory that exists and takes files, made if needed, before any work."""
+    out = pathlib.Path(path)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=out, prefix=".write_test_"):
+            pass
+    except OSError as err:
+        raise ValueError(f"{field}: cannot write to {str(out)!r} ({err.strerror or err})") from err
+    return out

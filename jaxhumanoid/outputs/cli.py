@@ -7,7 +7,6 @@ import argparse
 import json
 import pathlib
 import sys
-import tempfile
 import time
 
 import numpy as np
@@ -19,7 +18,7 @@ from jaxhumanoid.ocp.tasks import TASKS, get_task
 from jaxhumanoid.outputs import plots, timeline, tracking_plots
 from jaxhumanoid.outputs.animation import animate
 from jaxhumanoid.progress import IterationLine, Progress
-from jaxhumanoid.runtime import enable_compilation_cache
+from jaxhumanoid.runtime import enable_compilation_cache, writable_dir
 from jaxhumanoid.solvers import ipopt_capi
 from jaxhumanoid.strategy.posture import find_equilibrium
 from jaxhumanoid.strategy.problem import GUESSES, stage_problem
@@ -73,18 +72,6 @@ def checked_options(args) -> dict:
     if args.solver in ("ipopt", "casadi"):
         ipopt_capi.check_options(opts)
     return opts
-
-
-def writable_dir(path: str, field: str = "--out") -> pathlib.Path:
-    """``path`` as a directory that exists and takes files, made if needed, before any work."""
-    out = pathlib.Path(path)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        with tempfile.NamedTemporaryFile(dir=out, prefix=".write_test_"):
-            pass
-    except OSError as err:
-        raise ValueError(f"{field}: cannot write to {str(out)!r} ({err.strerror or err})") from err
-    return out
 
 
 def _write_figures(sol, out: pathlib.Path, with_animation: bool):

@@ -38,6 +38,7 @@ import numpy as np
 from jaxhumanoid.model.params import ContactParams, FootParams, PlanarChain
 from jaxhumanoid.ocp import tasks
 from jaxhumanoid.ocp.tasks import Task, Weights
+from jaxhumanoid.runtime import read_toml
 
 PRESETS = {"humanoid": PlanarChain.humanoid}
 TABLES = {
@@ -177,12 +178,7 @@ def task_files(folder) -> list[pathlib.Path]:
 def load_task_file(path) -> TaskFile:
     """Read and check a task file (see the module docstring)."""
     path = pathlib.Path(path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except OSError as err:
-        raise ValueError(f"--task-file: cannot read {str(path)!r} ({err.strerror or err})") from err
-    except tomllib.TOMLDecodeError as err:
-        raise ValueError(f"{path}: not valid TOML ({err})") from err
+    data = read_toml(path, "--task-file")
     _check_keys(path, data)
     if "name" not in data or "task" not in data:
         raise ValueError(f'{path}: a task file needs name = "..." and a [task] table')

@@ -44,7 +44,6 @@ import itertools
 import json
 import math
 import pathlib
-import tomllib
 import zlib
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -53,6 +52,7 @@ import numpy as np
 
 from jaxhumanoid.ocp.scheme import parse_scheme
 from jaxhumanoid.ocp.tasks import TASKS, get_task
+from jaxhumanoid.runtime import read_toml
 from jaxhumanoid.strategy.solve import SOLVERS
 from jaxhumanoid.strategy.taskfile import load_task_file
 
@@ -422,12 +422,7 @@ def parse_spec(data: Mapping[str, Any], base: pathlib.Path | str = ".", path: st
 def load_spec(path) -> Spec:
     """Read, check and expand a spec file (see the module docstring)."""
     path = pathlib.Path(path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except OSError as err:
-        raise ValueError(f"spec: cannot read {str(path)!r} ({err.strerror or err})") from err
-    except tomllib.TOMLDecodeError as err:
-        raise ValueError(f"{path}: not valid TOML ({err})") from err
+    data = read_toml(path, "spec")
     try:
         return parse_spec(data, path.parent, str(path))
     except ValueError as err:

@@ -13,30 +13,18 @@ from __future__ import annotations
 
 import contextlib
 import pathlib
-import tempfile
 import time
 from collections.abc import Mapping
 from typing import Any, TextIO
 
 from jaxhumanoid.progress import Progress
+from jaxhumanoid.runtime import writable_dir
 from jaxhumanoid.solvers import ipopt_capi
 from jaxhumanoid.studies.compare import problem_agreement
 from jaxhumanoid.studies.engines import ENGINES, Crash, run_jobs
 from jaxhumanoid.studies.run import crashed_row, run_case
 from jaxhumanoid.studies.spec import Case, Spec, load_spec
 from jaxhumanoid.studies.table import SUMMARY, TABLE, Table, columns, finished_ids, read_table, summarise, write_json
-
-
-def output_dir(path) -> pathlib.Path:
-    """``path`` as a directory that exists and takes files, made if needed, before any work."""
-    out = pathlib.Path(path)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        with tempfile.NamedTemporaryFile(dir=out, prefix=".write_test_"):
-            pass
-    except OSError as err:
-        raise ValueError(f"--out: cannot write to {str(out)!r} ({err.strerror or err})") from err
-    return out
 
 
 def check_run(spec: Spec, engine: str, workers: int, address: str | None) -> None:
@@ -92,7 +80,7 @@ def sweep(
     the workers use the persistent compilation cache."""
     spec = spec if isinstance(spec, Spec) else load_spec(spec)
     check_run(spec, engine, workers, address)
-    out = output_dir(out)
+    out = writable_dir(out)
     table = Table(out / TABLE, columns(spec))
     done = finished_ids(read_table(table.path), retry_failed)
     pending = {c.id: c for c in spec.cases if c.id not in done}

@@ -30,6 +30,15 @@ import numpy as np
 from jaxhumanoid.tracking.simulator import Plant, Reference, step
 
 
+def check_number_fields(obj, strict: bool) -> None:
+    """Every field of the dataclass ``obj`` a finite number, > 0 when ``strict``, else >= 0."""
+    bound = "> 0" if strict else ">= 0"
+    for f in dataclasses.fields(obj):
+        v = getattr(obj, f.name)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v < 0 or (strict and v == 0):
+            raise ValueError(f"{type(obj).__name__}.{f.name}: expected a finite number {bound}, got {v!r}")
+
+
 @dataclasses.dataclass(frozen=True)
 class LQRWeights:
     """Acceptable deviations (Bryson's rule): q_rad (joint angles, rad), qd_rad_s (rates, rad/s),
@@ -41,10 +50,7 @@ class LQRWeights:
     terminal_s: float = 10.0
 
     def __post_init__(self):
-        for f in dataclasses.fields(self):
-            v = getattr(self, f.name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v <= 0:
-                raise ValueError(f"LQRWeights.{f.name}: expected a finite number > 0, got {v!r}")
+        check_number_fields(self, strict=True)
 
     def matrices(self, n: int):
         """(Q (2n, 2n), R (n, n), Q_M (2n, 2n)) for a chain of n links."""

@@ -36,7 +36,7 @@ import numpy as np
 from jaxhumanoid.model.params import ContactParams
 from jaxhumanoid.strategy.posture import find_equilibrium, margins
 from jaxhumanoid.strategy.solution import Solution
-from jaxhumanoid.tracking.lqr import DEFAULT_WEIGHTS, LQRWeights, tvlqr_gains
+from jaxhumanoid.tracking.lqr import DEFAULT_WEIGHTS, LQRWeights, check_number_fields, tvlqr_gains
 from jaxhumanoid.tracking.plan import Goal, check_substeps, plant_and_goal, reference
 from jaxhumanoid.tracking.simulator import Plant, Reference, Rollout, rollout
 
@@ -56,10 +56,7 @@ class Perturbation:
     torque_noise_Nm: float = 5.0
 
     def __post_init__(self):
-        for f in dataclasses.fields(self):
-            v = getattr(self, f.name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v < 0:
-                raise ValueError(f"Perturbation.{f.name}: expected a finite number >= 0, got {v!r}")
+        check_number_fields(self, strict=False)
         for name in ("mass_length", "contact", "friction"):
             if getattr(self, name) >= 1:
                 raise ValueError(f"Perturbation.{name}: expected a fraction below 1, got {getattr(self, name)!r}")
@@ -78,10 +75,7 @@ class Criteria:
     foot_mass_fraction: float = 0.0145
 
     def __post_init__(self):
-        for f in dataclasses.fields(self):
-            v = getattr(self, f.name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v < 0:
-                raise ValueError(f"Criteria.{f.name}: expected a finite number >= 0, got {v!r}")
+        check_number_fields(self, strict=False)
 
 
 @dataclasses.dataclass
