@@ -5,8 +5,28 @@ import dataclasses
 import numpy as np
 import pytest
 
+from jaxhumanoid.model import contact as ct
+from jaxhumanoid.ocp import transcription as tr
 from jaxhumanoid.solvers.result import NLPResult
 from jaxhumanoid.strategy import solve as strat
+from jaxhumanoid.strategy.problem import build_problem
+
+
+def _fake_result(problem, x0, status="Solve_Succeeded", iterations=10) -> NLPResult:
+    n, m = problem.nlp.n, problem.nlp.m
+    return NLPResult(
+        x=np.asarray(x0, float),
+        lam_g=np.zeros(m),
+        z_l=np.zeros(n),
+        z_u=np.zeros(n),
+        status=status,
+        success=status == "Solve_Succeeded",
+        iterations=iterations,
+        solve_time_s=1.0,
+        compile_time_s=0.0,
+        objective=1.0,
+        max_constraint_violation=0.0,
+    )
 
 
 @pytest.mark.slow
@@ -23,20 +43,7 @@ def test_failed_stage_one_retries_with_the_fallback_and_counts_every_run(monkeyp
     def fake_run(solver, problem, x0, options, verbose, progress=None):
         calls.append((problem.layout.N, dict(options), np.array(x0)))
         fail = problem.layout.pseudo_static and len(calls) == 1
-        n, m = problem.nlp.n, problem.nlp.m
-        return NLPResult(
-            x=np.asarray(x0, float),
-            lam_g=np.zeros(m),
-            z_l=np.zeros(n),
-            z_u=np.zeros(n),
-            status="Infeasible_Problem_Detected" if fail else "Solve_Succeeded",
-            success=not fail,
-            iterations=100 + len(calls),
-            solve_time_s=1.0,
-            compile_time_s=0.5,
-            objective=1.0,
-            max_constraint_violation=0.0,
-        )
+        return _fake_result(problem, x0, "Infeasible_Problem_Detected" if fail else "Solve_Succeeded", 100 + len(calls))
 
     monkeypatch.setattr(strat, "_run_solver", fake_run)
     sol = strat.solve("T1", "A,F+C,2S", solver=solver, N=10, N1=5)
@@ -61,3 +68,71 @@ def test_failed_stage_one_retries_with_the_fallback_and_counts_every_run(monkeyp
     assert 0 < np.max(np.abs(x[2] - x[0])) < 10 * strat.STAGE1_RESTART_SIGMA
     np.testing.assert_array_equal(x[2], x[3])
     assert np.max(np.abs(x[4] - x[2])) > 0
+
+
+def test_law_path_runs_geometrically_from_the_relaxed_to_the_nominal_law():
+    first, last = strat.ContactParams.relaxed(), strat.ContactParams.nominal()
+    laws = strat.law_path(first, last, 4)
+    assert len(laws) == 5 and laws[-1] is last
+    for k in ("kappa", "f0", "xhat"):
+        values = np.array([float(getattr(law, k)) for law in laws])
+        assert values[0] == pytest.approx(float(getattr(first, k)), rel=1e-15)
+        np.testing.assert_allclose(np.diff(np.log(values)), np.log(values[-1] / values[0]) / 4, rtol=1e-12)
+
+
+def test_with_law_reseats_the_start_so_that_it_stays_the_same_equilibrium():
+    final = build_problem("T1", "A,F+C,2S", N=10)
+    relaxed = strat.with_law(final, strat.ContactParams.relaxed())
+    assert relaxed.nlp is final.nlp and strat.with_law(final, final.p.contact) is final
+    moved = np.abs(np.asarray(relaxed.p.q_start) - np.asarray(final.p.q_start)).max()
+    assert 1e-6 < moved < 0.05  # the relaxed law (f0 = 300 N) needs another gap for the same load
+    active = final.layout.active
+
+    def normal_forces(p, q):
+        return np.asarray(ct.contact_forces(p.model, p.foot, p.contact, q, np.zeros(q.shape), active))[:, 1]
+
+    f_nominal = normal_forces(final.p, final.p.q_start)
+    assert f_nominal.max() > 100.0
+    np.testing.assert_allclose(normal_forces(relaxed.p, relaxed.p.q_start), f_nominal, atol=1e-6 * f_nominal.max())
+    # mutation: the relaxed law at the nominal start carries other forces
+    assert np.abs(normal_forces(relaxed.p, final.p.q_start) - f_nominal).max() > 10.0
+    u_nominal = tr.equilibrium_torques(final.p, final.p.q_start, active)
+    u_relaxed = tr.equilibrium_torques(relaxed.p, relaxed.p.q_start, active)
+    np.testing.assert_allclose(u_relaxed, u_nominal, atol=0.02 * np.abs(u_nominal).max())  # the posture moved
+
+
+@pytest.mark.parametrize("solver", ["ipopt", "ipm"])
+def test_continuation_hands_over_along_the_law_path_and_stops_at_a_failure(monkeypatch, solver):
+    calls = []
+
+    def fake_run(used, problem, x0, options, verbose, progress=None):
+        calls.append((used, problem.layout.pseudo_static, float(problem.p.contact.kappa), dict(options)))
+        fail = len(calls) == fail_at
+        return _fake_result(problem, x0, "Restoration_Failed" if fail else "Solve_Succeeded", 10 + len(calls))
+
+    monkeypatch.setattr(strat, "_run_solver", fake_run)
+    fail_at = 0
+    kw = dict(N=10, N1=5, handover="continuation", continuation_steps=3, stage1_solver="casadi")
+    sol = strat.solve("T1", "A,F+C,2S", solver=solver, **kw)
+    laws = strat.law_path(strat.ContactParams.relaxed(), strat.ContactParams.nominal(), 3)
+    assert [c[0] for c in calls] == ["casadi", "casadi"] + [solver] * 3
+    assert [c[1] for c in calls] == [True] + [False] * 4
+    np.testing.assert_allclose([c[2] for c in calls[1:]], [float(law.kappa) for law in laws])
+    assert calls[1][3]["mu_init"] == strat.STAGE2_DEFAULTS["mu_init"]
+    assert all(c[3]["mu_init"] == strat.CONTINUATION_OPTIONS["mu_init"] for c in calls[2:])
+    assert [s.runs for s in sol.stages] == [(11,), (12,), (13, 14, 15)] and sol.success
+    assert sol.stages[2].iterations == 13 + 14 + 15 and sol.stages[2].attempts == 3
+    calls.clear()
+    fail_at = 4  # the second law of stage 2
+    sol = strat.solve("T1", "A,F+C,2S", solver=solver, **kw)
+    assert len(calls) == 4 and not sol.success
+    assert sol.stages[2].status == "Restoration_Failed (law 2/3)" and sol.stages[2].runs == (13, 14)
+
+
+def test_bad_handover_settings_are_rejected_before_any_work():
+    with pytest.raises(ValueError, match="handover"):
+        strat.solve("T1", handover="homotopy")
+    with pytest.raises(ValueError, match="continuation_steps"):
+        strat.solve("T1", handover="continuation", continuation_steps=0)
+    with pytest.raises(ValueError, match="stage1_solver"):
+        strat.solve("T1", stage1_solver="snopt")

@@ -23,7 +23,7 @@ from jaxhumanoid.solvers import ipopt_capi
 from jaxhumanoid.strategy.posture import find_equilibrium
 from jaxhumanoid.strategy.problem import GUESSES, stage_problem
 from jaxhumanoid.strategy.solution import Solution
-from jaxhumanoid.strategy.solve import solve
+from jaxhumanoid.strategy.solve import HANDOVERS, solve
 from jaxhumanoid.strategy.taskfile import load_task_file, task_files
 from jaxhumanoid.studies import ENGINES, sweep
 from jaxhumanoid.tracking import montecarlo
@@ -89,7 +89,16 @@ def _save(sol, out: pathlib.Path) -> dict:
     return report
 
 
-SOLVE_DEFAULTS = {"scheme": "A,F+C,2S", "solver": "ipopt", "N": 100, "T": 5.0, "N1": None, "guess": "linear"}
+SOLVE_DEFAULTS = {
+    "scheme": "A,F+C,2S",
+    "solver": "ipopt",
+    "N": 100,
+    "T": 5.0,
+    "N1": None,
+    "guess": "linear",
+    "handover": "direct",
+    "stage1_solver": None,
+}
 
 
 def solve_arguments(args) -> dict:
@@ -328,6 +337,18 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         choices=list(GUESSES),
         help="initial guess: linear (the paper's, default) or inverse_dynamics (its torques and forces)",
+    )
+    p.add_argument(
+        "--handover",
+        default=None,
+        choices=list(HANDOVERS),
+        help="2S from stage 1 to stage 2: direct (the paper's, default) or continuation in the contact law",
+    )
+    p.add_argument(
+        "--stage1-solver",
+        default=None,
+        choices=["ipopt", "ipm", "casadi"],
+        help="the solver of 2S's relaxed-law stages (default: --solver)",
     )
     p.add_argument("--out", default="out/solve")
     p.add_argument("--animate", action="store_true", help="also write animation.gif")

@@ -46,8 +46,9 @@ class StageStats:
     max_constraint_violation: float
     n_variables: int
     n_constraints: int
-    attempts: int = 1  # solver runs (a stage-1 fallback adds one)
+    attempts: int = 1  # solver runs (a stage-1 fallback or a continuation step adds one)
     start_violation: float = float("nan")  # max constraint violation at the stage's start point
+    runs: tuple[int, ...] = ()  # iterations of each solver run, in order
 
 
 @dataclasses.dataclass
@@ -151,7 +152,7 @@ class Solution:
             solver=meta["solver"],
             objective=meta["objective"],
             objective_terms=meta["objective_terms"],
-            stages=[StageStats(**s) for s in meta["stages"]],
+            stages=[StageStats(**{**s, "runs": tuple(s.get("runs", ()))}) for s in meta["stages"]],
             active=tuple(meta["active_contacts"]),
             geometry={k: tuple(v) if k == "names" else np.asarray(v) for k, v in meta["geometry"].items()},
             warm_start=warm,

@@ -4,6 +4,13 @@
 contact law; its primal solution, linearly interpolated onto the fine grid, warm-starts stage 2,
 the full dynamic problem (6) with the nominal law. Only primal variables are passed on (as in the
 paper); the barrier parameter of stage 2 is an IPOPT option (``stage2_options``).
+
+The hand-over (``HANDOVERS``) is either the paper's ``"direct"`` one, stage 2 solved once under the
+nominal law, or ``"continuation"``: stage 2 solved under a path of laws from stage 1's to the
+nominal one (``law_path``), each solve warm-started from the last, every law with its start
+posture re-seated (``with_law``). The long first solve then runs under the relaxed law, and the
+later ones are short, local corrections, whose end depends on the stage-1 point but not on the
+backend (docs/results.md).
 """
 
 from __future__ import annotations
@@ -54,6 +61,12 @@ STAGE1_FALLBACKS: tuple[tuple[dict, int | None], ...] = (
     ({}, 2),
     ({"mu_strategy": "adaptive"}, 2),
 )
+
+
+HANDOVERS = ("direct", "continuation")
+CONTINUATION_STEPS = 4
+# Later laws of the continuation start next to their optimum: a small barrier keeps them there.
+CONTINUATION_OPTIONS = {"mu_init": 1e-5}
 
 
 StageProgress = Callable[[str, int, float, float], None]
@@ -122,6 +135,7 @@ def _stage_stats(name: str, problem: Problem, attempts: list[NLPResult], setup_t
         n_constraints=int(problem.nlp.m),
         attempts=len(attempts),
         start_violation=start_violation(problem, x0),
+        runs=tuple(int(r.iterations) for r in attempts),
     )
 
 
@@ -195,6 +209,30 @@ def restart_point(problem: Problem, seed: int | None) -> np.ndarray:
         return b.x0
     noise = np.random.default_rng(seed).standard_normal(b.x0.size)
     return np.clip(b.x0 + STAGE1_RESTART_SIGMA * noise, b.xl, b.xu)
+
+
+def law_path(first: ContactParams, last: ContactParams, steps: int) -> tuple[ContactParams, ...]:
+    """``steps + 1`` laws from ``first`` to ``last``: law_j = first^(1 - l) last^l per parameter
+    (kappa, f0, xhat, mu), l = j / steps; geometric because kappa and f0 set the scale of forces."""
+
+    def at(lam: float) -> ContactParams:
+        mix = {
+            k: float(getattr(first, k)) ** (1 - lam) * float(getattr(last, k)) ** lam
+            for k in ("kappa", "f0", "xhat", "mu")
+        }
+        return ContactParams(**mix)
+
+    return tuple(at(j / steps) for j in range(steps)) + (last,)
+
+
+def with_law(problem: Problem, law: ContactParams) -> Problem:
+    """``problem`` under another contact law, its start posture re-seated so that the law carries
+    the same contact forces there (``posture.reseat_for_contact``): the start stays a static
+    equilibrium with the same torques and foot margins. The NLP is the same; only p changes."""
+    if all(np.array_equal(getattr(law, k), getattr(problem.p.contact, k)) for k in ("kappa", "f0", "xhat", "mu")):
+        return problem
+    q_start, _ = reseat_for_contact(problem.p, problem.p.q_start, problem.layout.active, law)
+    return dataclasses.replace(problem, p=dataclasses.replace(problem.p, contact=law, q_start=jnp.asarray(q_start)))
 
 
 def stage_one_problem(task, scheme, final: Problem, N1: int, contact_stage1=None, guess: str = "linear") -> Problem:
@@ -306,6 +344,9 @@ def solve(
     foot: FootParams | None = None,
     contact_stage1: ContactParams | None = None,
     guess: str = "linear",
+    handover: str = "direct",
+    continuation_steps: int = CONTINUATION_STEPS,
+    stage1_solver: str | None = None,
     progress: StageProgress | None = None,
 ) -> Solution:
     """Solve one task with one strategy.
@@ -319,7 +360,9 @@ def solve(
     of the dynamic stage, ``contact_stage1`` (default ``ContactParams.relaxed()``) that of the
     pseudo-static stage 1. ``guess`` is the initial guess of the first stage (``GUESSES``): the
     paper's linear one, or ``"inverse_dynamics"``, the same motion with torques and forces that
-    satisfy its dynamics (``transcription.inverse_dynamics_guess``). When the body, the foot or
+    satisfy its dynamics (``transcription.inverse_dynamics_guess``). ``handover`` (``HANDOVERS``)
+    is how 2S passes from stage 1 to stage 2: ``"direct"`` (the paper's) or ``"continuation"``
+    in the contact law over ``continuation_steps`` steps (module docstring). When the body, the foot or
     the law is given and the task's start posture does not keep the foot steady under them, it
     is moved to the nearest posture that does (``posture.find_equilibrium``; a warning says so),
     or a ValueError says none was found. ``progress`` (e.g. ``jaxhumanoid.progress.IterationLine``)
@@ -329,8 +372,18 @@ def solve(
     scheme = parse_scheme(scheme)
     if solver not in SOLVERS:
         raise ValueError(f"solver: {solver!r} not in {SOLVERS}")
+    if stage1_solver is not None and stage1_solver not in SOLVERS:
+        raise ValueError(f"stage1_solver: {stage1_solver!r} not in {SOLVERS} (or None: the solver)")
     if guess not in GUESSES:
         raise ValueError(f"guess: {guess!r} not in {GUESSES}")
+    if handover not in HANDOVERS:
+        raise ValueError(f"handover: {handover!r} not in {HANDOVERS}")
+    if (
+        isinstance(continuation_steps, bool)
+        or not isinstance(continuation_steps, (int, np.integer))
+        or continuation_steps < 1
+    ):
+        raise ValueError(f"continuation_steps: expected an integer >= 1, got {continuation_steps!r}")
     _check_inputs(
         N,
         T,
@@ -352,13 +405,58 @@ def solve(
     x0 = final.bounds.x0
     if scheme.stages == 2:
         stage1 = {**STAGE1_DEFAULTS, **(options or {}), **(stage1_options or {})}
-        stats1, Z1 = _stage_one(task, scheme, solver, final, N1, stage1, contact_stage1, guess, verbose, progress)
+        first = stage1_solver or solver
+        stats1, Z1 = _stage_one(task, scheme, first, final, N1, stage1, contact_stage1, guess, verbose, progress)
         stages.append(stats1)
         Zf = interpolate_full(Z1, T, final.layout)
         warm = {"t": np.linspace(0.0, T, N + 1), "q": Zf[:, final.layout.stage_slices()["q"]]}
         x0 = np.clip(np.asarray(tr.free_from_full(final.layout, Zf)), final.bounds.xl, final.bounds.xu)
     stage2 = {**(STAGE2_DEFAULTS if scheme.stages == 2 else {}), **(options or {}), **(stage2_options or {})}
+    if scheme.stages == 2 and handover == "continuation":
+        first_law = ContactParams.relaxed() if contact_stage1 is None else contact_stage1
+        laws = law_path(first_law, final.p.contact, continuation_steps)
+        solvers = (stage1_solver or solver, solver)
+        more, x = _continuation_stages(solvers, final, laws, x0, stage2, setup_final, verbose, progress)
+        stages.extend(more)
+        return make_solution(final, x, stages, solver, warm_start=warm)
     name = "stage 2 (dynamic)" if scheme.stages == 2 else "single stage"
     res = _run_solver(solver, final, x0, stage2, verbose, _for_stage(progress, name))
     stages.append(_stage_stats(name, final, [res], setup_final, x0))
     return make_solution(final, res.x, stages, solver, warm_start=warm)
+
+
+def _run_path(solver, final: Problem, laws, x0, options, verbose, progress, label: str) -> list[NLPResult]:
+    """Solve ``final`` under each law of ``laws`` in turn, each from the last one's solution (the
+    first from x0, the later ones with ``CONTINUATION_OPTIONS``); stop at the first failed solve."""
+    attempts: list[NLPResult] = []
+    x = x0
+    for j, law in enumerate(laws):
+        name = label if j == len(laws) - 1 else f"{label}, law {j + 1}/{len(laws)}"
+        opts = options if j == 0 else {**options, **CONTINUATION_OPTIONS}
+        attempts.append(_run_solver(solver, with_law(final, law), x, opts, verbose, _for_stage(progress, name)))
+        x = attempts[-1].x
+        if not attempts[-1].success:
+            break
+    return attempts
+
+
+def _continuation_stages(solvers, final: Problem, laws, x0, options, setup_time_s, verbose, progress):
+    """The dynamic stages of a continuation hand-over: the first law (stage 1's) by ``solvers[0]``,
+    then the path to the nominal law by ``solvers[1]``. Returns (stats of both, x); a failed solve
+    ends the path, and its stage reports its status with the law it failed at."""
+    stats: list[StageStats] = []
+    x = x0
+    for solver, part, name in (
+        (solvers[0], laws[:1], "stage 1 (dynamic, relaxed law)"),
+        (solvers[1], laws[1:], "stage 2 (dynamic)"),
+    ):
+        attempts = _run_path(solver, with_law(final, part[-1]), part, x, options, verbose, progress, name)
+        st = _stage_stats(name, with_law(final, part[-1]), attempts, setup_time_s if not stats else 0.0, x)
+        if len(attempts) < len(part):
+            st = dataclasses.replace(st, status=f"{st.status} (law {len(attempts)}/{len(part)})", success=False)
+        stats.append(st)
+        x = attempts[-1].x
+        if not st.success:
+            break
+        options = {**options, **CONTINUATION_OPTIONS}
+    return stats, x

@@ -20,6 +20,8 @@
     [weights]  w_u = 1e-3; w_qd = 1.0; w_dqd = 2e-2; w_du = 1e-5  # optional
     [solve]    scheme = "A,F+C,2S"; solver = "ipopt"; N = 60; T = 4.0; N1 = 20    # optional
                guess = "inverse_dynamics"  # or "linear" (default): the initial guess
+               handover = "continuation"   # or "direct" (default): stage 1 to stage 2
+               stage1_solver = "ipopt"     # the solver of the relaxed-law stages (default: solver)
     [options]  tol = 1e-8                # solver options, optional
 
 Angles follow the package's convention (relative joint angles, ``jaxhumanoid.model``). Every
@@ -74,7 +76,7 @@ TABLES = {
         "goal_tolerance",
     },
     "weights": {"w_u", "w_qd", "w_dqd", "w_du"},
-    "solve": {"scheme", "solver", "N", "T", "N1", "guess"},
+    "solve": {"scheme", "solver", "N", "T", "N1", "guess", "handover", "stage1_solver"},
     "options": None,
 }
 
