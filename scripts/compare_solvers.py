@@ -1,9 +1,11 @@
 """The default tasks solved by every backend, side by side in one run: one answer to one problem?
 
     python scripts/compare_solvers.py [--tasks T1 T2 T3 T4 | examples/human/T1.toml ...] [--solvers ipopt ipm casadi] [--N 100]
-        [--scheme A,F+C,2S] [--out results/compare_solvers.json] [--md results/compare_solvers.md]
+        [--scheme A,F+C,2S] [--handover direct|continuation] [--stage1-solver ipopt|ipm|casadi|same]
+        [--out results/compare_solvers.json] [--md results/compare_solvers.md]
 
-A task is a key or a task file (solved with the file's scheme, grid and options). Per task and solver: the status, iterations, solve time and objective of each stage, the peak
+A task is a key or a task file (solved with the file's scheme, grid and options);
+``--handover`` and ``--stage1-solver`` override the task file's or the default. Per task and solver: the status, iterations, solve time and objective of each stage, the peak
 loads (``Solution.peaks``) and the four objective terms; per task and pair of solvers: the
 relative objective difference and the largest joint-angle difference (rad) over the trajectory
 (``jaxhumanoid.studies.compare.agreement``: the same optimum when objectives are within ``--obj-tol``
@@ -26,13 +28,14 @@ import jaxhumanoid as jh
 from jaxhumanoid.studies.compare import Outcome, agreement
 
 
-def run_one(task: str, solver: str, scheme: str, N: int) -> tuple[dict, Outcome]:
-    """One solve of a task key (scheme and N as given) or of a task file (its own settings)."""
+def run_one(task: str, solver: str, scheme: str, N: int, overrides: dict) -> tuple[dict, Outcome]:
+    """One solve of a task key (scheme and N as given) or of a task file (its own settings), with
+    ``overrides`` of ``solve``'s keyword arguments."""
     t0 = time.perf_counter()
     if task.endswith(".toml"):
-        sol = jh.solve(**{**jh.load_task_file(task).as_solve_kwargs(), "solver": solver})
+        sol = jh.solve(**{**jh.load_task_file(task).as_solve_kwargs(), **overrides, "solver": solver})
     else:
-        sol = jh.solve(task, scheme=scheme, solver=solver, N=N)
+        sol = jh.solve(task, scheme=scheme, solver=solver, N=N, **overrides)
     rec = sol.report()
     rec["wall_s"] = time.perf_counter() - t0
     return rec, Outcome(bool(sol.success), float(sol.objective), np.asarray(sol.q))
@@ -64,20 +67,28 @@ def main() -> None:
     ap.add_argument("--solvers", nargs="*", default=["ipopt", "ipm", "casadi"])
     ap.add_argument("--scheme", default="A,F+C,2S")
     ap.add_argument("--N", type=int, default=100)
+    ap.add_argument("--handover", choices=["direct", "continuation"], default=None)
+    ap.add_argument(
+        "--stage1-solver", choices=["ipopt", "ipm", "casadi", "same"], default=None, help="same: each solver"
+    )
     ap.add_argument("--obj-tol", type=float, default=1e-6)
     ap.add_argument("--q-tol", type=float, default=1e-4)
     ap.add_argument("--out", default="results/compare_solvers.json")
     ap.add_argument("--md", default=None)
     args = ap.parse_args()
+    overrides = {k: v for k, v in (("handover", args.handover), ("stage1_solver", args.stage1_solver)) if v}
+    if overrides.get("stage1_solver") == "same":
+        overrides["stage1_solver"] = None
     results: dict = {
         "scheme": args.scheme,
         "N": args.N,
         "solvers": args.solvers,
+        "overrides": overrides,
         "environment": {"OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS"), "machine": platform.machine()},
         "tasks": {},
     }
     for task in args.tasks:
-        solves = {s: run_one(task, s, args.scheme, args.N) for s in args.solvers}
+        solves = {s: run_one(task, s, args.scheme, args.N, overrides) for s in args.solvers}
         agree = agreement({s: out for s, (_, out) in solves.items()}, args.obj_tol, args.q_tol)
         entry: dict = {"solves": {s: rec for s, (rec, _) in solves.items()}, "agreement": agree}
         if "ipm" in solves and "casadi" in solves:

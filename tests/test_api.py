@@ -9,7 +9,7 @@ import pytest
 import jaxhumanoid as jh
 from jaxhumanoid.model.params import DEG, HUMANOID_RANGES, HUMANOID_STRENGTH
 from jaxhumanoid.ocp.tasks import effort_weights
-from jaxhumanoid.outputs.cli import main
+from jaxhumanoid.outputs.cli import build_parser, main, solve_arguments
 from jaxhumanoid.strategy.posture import margins
 
 EXAMPLES = pathlib.Path(__file__).resolve().parents[1] / "examples"
@@ -134,3 +134,38 @@ def test_the_human_task_files_pose_equilibria_within_adult_ranges_and_strength(k
     for q in (task.start, task.goal):
         assert np.all(q >= body.q_min) and np.all(q <= body.q_max)
         assert margins(body, q, task.active).ok
+
+
+def test_handover_settings_come_from_the_task_file_and_the_command_line_overrides_them():
+    path = str(EXAMPLES / "human" / "T1.toml")
+    kw = solve_arguments(build_parser().parse_args(["solve", "--task-file", path]))
+    assert kw["handover"] == "continuation" and kw["stage1_solver"] == "ipopt" and kw["guess"] == "inverse_dynamics"
+    args = ["solve", "--task-file", path, "--handover", "direct", "--stage1-solver", "ipm"]
+    kw = solve_arguments(build_parser().parse_args(args))
+    assert kw["handover"] == "direct" and kw["stage1_solver"] == "ipm"
+    kw = solve_arguments(build_parser().parse_args(["solve", "--task-file", path, "--stage1-solver", "same"]))
+    assert kw["stage1_solver"] is None and kw["handover"] == "continuation"
+    kw = solve_arguments(build_parser().parse_args(["solve", "--task", "T2"]))
+    assert kw["handover"] == "direct" and kw["stage1_solver"] is None  # the paper's 2S by default
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("key", ["T1", "T2", "T3", "T4"])
+def test_the_three_backends_reach_one_optimum_on_the_human_task_files(key):
+    kwargs = jh.load_task_file(EXAMPLES / "human" / f"{key}.toml").as_solve_kwargs()
+    sols = {s: jh.solve(**{**kwargs, "solver": s}) for s in ("ipopt", "ipm", "casadi")}
+    assert all(sol.success for sol in sols.values()), {s: sol.status for s, sol in sols.items()}
+    ref = sols["ipopt"]
+    for sol in sols.values():
+        assert abs(sol.objective - ref.objective) <= 1e-6 * abs(ref.objective)
+        assert np.abs(sol.q - ref.q).max() <= 1e-4
+
+
+def test_the_continuation_brings_ipopt_and_the_ipm_to_one_optimum_on_a_human_task():
+    # human T3 on a coarse grid: the relaxed-law stages by IPOPT, then each backend's continuation
+    kwargs = {**jh.load_task_file(EXAMPLES / "human" / "T3.toml").as_solve_kwargs(), "N": 30, "N1": 15}
+    sols = {s: jh.solve(**{**kwargs, "solver": s}) for s in ("ipopt", "ipm")}
+    assert all(sol.success for sol in sols.values()), {s: sol.status for s, sol in sols.items()}
+    assert [st.attempts for st in sols["ipm"].stages][1:] == [1, 4]
+    assert abs(sols["ipm"].objective - sols["ipopt"].objective) <= 1e-6 * sols["ipopt"].objective
+    assert np.abs(sols["ipm"].q - sols["ipopt"].q).max() <= 1e-4

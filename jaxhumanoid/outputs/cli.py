@@ -113,6 +113,8 @@ def solve_arguments(args) -> dict:
         settings.update({k: kwargs.pop(k) for k in list(kwargs) if k in SOLVE_DEFAULTS})
         base = kwargs
     settings.update({k: getattr(args, k) for k in SOLVE_DEFAULTS if getattr(args, k) is not None})
+    if settings["stage1_solver"] == "same":
+        settings["stage1_solver"] = None
     return {**base, **settings}
 
 
@@ -347,8 +349,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--stage1-solver",
         default=None,
-        choices=["ipopt", "ipm", "casadi"],
-        help="the solver of 2S's relaxed-law stages (default: --solver)",
+        choices=["ipopt", "ipm", "casadi", "same"],
+        help="the solver of 2S's relaxed-law stages; same: --solver (the default)",
     )
     p.add_argument("--out", default="out/solve")
     p.add_argument("--animate", action="store_true", help="also write animation.gif")
