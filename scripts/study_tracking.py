@@ -1,12 +1,15 @@
 """Study: do the plans of T1-T4 execute? Open loop against TVLQR over perturbed bodies and starts.
 
-    python scripts/study_tracking.py [--tasks T1 T2 T3 T4] [--trials 100] [--seed 0] [--plans DIR]
-        [--out docs/tracking.json] [--lqr Q_RAD QD_RAD_S U_NM] [--defects]
+    python scripts/study_tracking.py [--tasks T1 T2 T3 T4 | examples/human/T1.toml ...] [--trials 100]
+        [--seed 0] [--plans DIR] [--out docs/tracking.json] [--lqr Q_RAD QD_RAD_S U_NM [FOOT_N]]
+        [--foot-margin LOAD FRICTION COP] [--N 100] [--defects]
 
 The tables are copied into docs/tracking.md, which explains them.
 
-Each task is solved with the defaults (A,F+C,2S, N = 100, IPOPT) into ``--plans``/Tk (reused when
-a solution is already there), then ``jaxhumanoid.tracking.track`` runs ``--trials`` perturbed
+Each task (a built-in key or a task file) is solved with the defaults (A,F+C,2S, N = 100, IPOPT;
+a task file's own settings), on ``--N`` intervals and with ``--foot-margin`` when given, into
+``--plans``/<label> (reused when a solution is already there; the label is the key, or the task
+file's folder and stem, with the margin and the grid appended when given), then ``jaxhumanoid.tracking.track`` runs ``--trials`` perturbed
 executions at the default perturbation, open loop and closed loop, as one batch each. Writes the
 JSON (rates, failure reasons, timings) and a markdown table next to it (``tracking_table.md``); rows of tasks
 not run this time are kept from an existing ``--out``. ``--defects`` instead measures how far each
@@ -25,26 +28,44 @@ import time
 import numpy as np
 
 import jaxhumanoid as jh
+from jaxhumanoid.model.foot import FootMargin
 from jaxhumanoid.progress import Progress
 from jaxhumanoid.tracking import LQRWeights, track
 from jaxhumanoid.tracking.plan import interval_defects
 
 
-def plan(task: str, plans: pathlib.Path) -> pathlib.Path:
-    out = plans / task
+def label(task: str, margin, N) -> str:
+    """The row's name: the key T1..T4 or the task file's folder_stem, with the margin and the grid."""
+    path = pathlib.Path(task)
+    name = f"{path.parent.name}_{path.stem}" if path.suffix == ".toml" else task
+    if margin is not None:
+        name += " margin " + "/".join(f"{v:g}" for v in margin)
+    return name + (f" N={N}" if N is not None else "")
+
+
+def plan(task: str, plans: pathlib.Path, margin=None, N=None) -> pathlib.Path:
+    out = plans / label(task, margin, N).replace(" ", "_").replace("/", "-")
     if not (out / "solution.npz").is_file():
-        jh.solve(task).save(out)
+        kwargs = jh.load_task_file(task).as_solve_kwargs() if task.endswith(".toml") else {"task": task}
+        if margin is not None:
+            kwargs["foot_margin"] = FootMargin(*margin)
+        if N is not None:
+            kwargs["N"] = N
+        sol = jh.solve(**kwargs)
+        sol.save(out)
+        print(f"{out}: objective {sol.objective:.6g}, {' + '.join(s.status for s in sol.stages)}", flush=True)
     return out
 
 
-def summary(res, wall_s: float) -> dict:
+def summary(res, wall_s: float, name: str, objective: float) -> dict:
     reasons = {
         key: dict(collections.Counter(r[key]["reason"] or "success" for r in res.records))
         for key in ("open_loop", "closed_loop")
     }
     first_fail = sorted(r["closed_loop"]["t_fail"] for r in res.records if r["closed_loop"]["t_fail"] is not None)
     return {
-        "task": res.task,
+        "task": name,
+        "plan_objective": objective,
         "trials": res.trials,
         "lqr_weights": res.weights,
         "rejected_draws": res.rejected_draws,
@@ -61,15 +82,16 @@ def summary(res, wall_s: float) -> dict:
 
 def markdown(rows) -> str:
     lines = [
-        "| task | trials | open loop success | closed loop success | closed loop: first failures | median time of "
-        "first failure (s) | closed loop at the goal at the end | wall (s) | rollouts/s |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| task | plan objective | trials | open loop success | closed loop success | closed loop: first failures "
+        "| median time of first failure (s) | closed loop at the goal at the end | wall (s) | rollouts/s |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         fails = ", ".join(f"{k} {v}" for k, v in sorted(r["reasons"]["closed_loop"].items()) if k != "success")
         t_fail = "-" if r["closed_loop_median_t_fail_s"] is None else f"{r['closed_loop_median_t_fail_s']:.2f}"
+        objective = f"{r['plan_objective']:.4g}" if "plan_objective" in r else "-"
         lines.append(
-            f"| {r['task']} | {r['trials']} | {r['open_loop_success_rate']:.0%} | {r['closed_loop_success_rate']:.0%} "
+            f"| {r['task']} | {objective} | {r['trials']} | {r['open_loop_success_rate']:.0%} | {r['closed_loop_success_rate']:.0%} "
             f"| {fails or '-'} | {t_fail} | {r['closed_loop_goal_reached_rate']:.0%} | {r['wall_s']:.0f} "
             f"| {r['trials_per_s']:.2f} |"
         )
@@ -90,7 +112,7 @@ def write_defects(args, rows, out: pathlib.Path) -> None:
     by_task = {r["task"]: r for r in rows}
     for task in args.tasks:
         by_task.setdefault(task, {"task": task})["defects_rad"] = defects(
-            jh.Solution.load(plan(task, pathlib.Path(args.plans)))
+            jh.Solution.load(plan(task, pathlib.Path(args.plans), args.foot_margin, args.N))
         )
         print(task, by_task[task]["defects_rad"], flush=True)
     rows = sorted(by_task.values(), key=lambda r: r["task"])
@@ -122,11 +144,19 @@ def main() -> None:
     parser.add_argument("--out", default="docs/tracking.json")
     parser.add_argument(
         "--lqr",
+        nargs="+",
+        type=float,
+        metavar="DEV",
+        help="TVLQR acceptable deviations Q_RAD QD_RAD_S U_NM [FOOT_N] (default those of LQRWeights)",
+    )
+    parser.add_argument(
+        "--foot-margin",
         nargs=3,
         type=float,
-        metavar=("Q_RAD", "QD_RAD_S", "U_NM"),
-        help="TVLQR acceptable deviations (default those of LQRWeights)",
+        metavar=("LOAD", "FRICTION", "COP"),
+        help="plan with this margin on (5) (model.foot.FootMargin; default the task's own, none)",
     )
+    parser.add_argument("--N", type=int, default=None, help="plan intervals (default the task's, 100)")
     parser.add_argument(
         "--defects", action="store_true", help="instead: the plans' interval defects against the simulator only"
     )
@@ -136,13 +166,16 @@ def main() -> None:
     if args.defects:
         write_defects(args, rows, out)
         return
+    if args.lqr is not None and len(args.lqr) not in (3, 4):
+        parser.error(f"--lqr: expected Q_RAD QD_RAD_S U_NM [FOOT_N], got {args.lqr}")
+    weights = LQRWeights(**dict(zip(("q_rad", "qd_rad_s", "u_Nm", "foot_N"), args.lqr or ())))
     for task in args.tasks:
-        src = plan(task, pathlib.Path(args.plans))
+        src = plan(task, pathlib.Path(args.plans), args.foot_margin, args.N)
+        name = label(task, args.foot_margin, args.N)
         t0 = time.perf_counter()
-        weights = LQRWeights() if args.lqr is None else LQRWeights(*args.lqr)
         res = track(src, trials=args.trials, seed=args.seed, weights=weights, progress=Progress(4))
-        row = summary(res, time.perf_counter() - t0)
-        rows = sorted([r for r in rows if r["task"] != task] + [row], key=lambda r: r["task"])
+        row = summary(res, time.perf_counter() - t0, name, jh.Solution.load(src).objective)
+        rows = sorted([r for r in rows if r["task"] != name] + [row], key=lambda r: r["task"])
         print(markdown([row]), flush=True)
         out.write_text(json.dumps(rows, indent=2) + "\n")
         out.with_name(out.stem + "_table.md").write_text(markdown(rows))

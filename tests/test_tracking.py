@@ -23,9 +23,19 @@ from jaxhumanoid.ocp import tasks
 from jaxhumanoid.ocp import transcription as tr
 from jaxhumanoid.outputs import tracking_plots
 from jaxhumanoid.outputs.cli import main
+from jaxhumanoid.strategy.posture import margins
 from jaxhumanoid.strategy.solution import Solution
 from jaxhumanoid.tracking import LQRWeights, Perturbation, Plant, linearise, reference, riccati, step, track
-from jaxhumanoid.tracking.montecarlo import Criteria, _gains
+from jaxhumanoid.tracking.montecarlo import (
+    MAX_SEAT_MOVE,
+    START_SPEC,
+    Criteria,
+    Draw,
+    _gains,
+    _seat,
+    perturbed_plant,
+    start_blend,
+)
 from jaxhumanoid.tracking.plan import plant_and_goal, static_plan
 
 BODY, FOOT, LAW = PlanarChain.humanoid(), FootParams.paper(), ContactParams.nominal()
@@ -106,6 +116,26 @@ def central_differences(f, x, u, eps: float = 1e-4):
     return J[:, :n_x], J[:, n_x:]
 
 
+def test_riccati_with_foot_outputs_reaches_the_cross_weighted_solution():
+    """Outputs y = C x + D u weighted by W: the recursion reaches scipy's DARE with the cross term
+    S = C^T W D dt, and with W = 0 it is the plain recursion."""
+    rng = np.random.default_rng(4)
+    A = np.eye(4) + 0.05 * rng.standard_normal((4, 4))
+    B, C, D = (0.1 * rng.standard_normal(s) for s in ((4, 2), (3, 4), (3, 2)))
+    Q, R, W, dt = np.diag([1.0, 2.0, 3.0, 4.0]), np.diag([0.5, 0.2]), np.diag([2.0, 1.0, 3.0]), 0.1
+    tile = lambda a: jnp.tile(a, (2000, 1, 1))  # noqa: E731
+    K, P = jax.jit(riccati)(tile(A), tile(B), Q, R, Q, dt, tile(C), tile(D), W)
+    Qy, Ry, S = (Q + C.T @ W @ C) * dt, (R + D.T @ W @ D) * dt, C.T @ W @ D * dt
+    P_are = scipy.linalg.solve_discrete_are(A, B, Qy, Ry, s=S)
+    K_are = -np.linalg.solve(Ry + B.T @ P_are @ B, B.T @ P_are @ A + S.T)
+    np.testing.assert_allclose(np.asarray(P[0]), P_are, rtol=1e-8)
+    np.testing.assert_allclose(np.asarray(K[0]), K_are, rtol=1e-8, atol=1e-10)
+    K0, _ = jax.jit(riccati)(tile(A), tile(B), Q, R, Q, dt, tile(C), tile(D), 0 * W)
+    K_plain, _ = jax.jit(riccati)(tile(A), tile(B), Q, R, Q, dt)
+    np.testing.assert_allclose(np.asarray(K0), np.asarray(K_plain), rtol=1e-12, atol=1e-14)
+    assert np.max(np.abs(np.asarray(K[0]) - np.asarray(K_plain[0]))) > 1e-3  # the outputs change the gains
+
+
 @pytest.mark.slow  # ~35 s of compilation: python -m pytest -q -m slow tests/test_tracking.py
 def test_linearisation_matches_finite_differences_in_contact():
     """In contact (stiff law, eps = 1e-6 rad against a penetration scale f0/kappa = 2 mm)."""
@@ -136,9 +166,14 @@ def test_gains_from_finite_difference_linearisation_agree(stand):
     ref = reference(stand, 2)
     K = np.asarray(_gains(PLANT, stand.active, ref, LQRWeights()))
     A, B = central_differences(lambda x, u: step(PLANT, stand.active, ref.dt, x, u)[0], ref.x[0], ref.u[0])
+    scale = jnp.array([1.0, 1.0, 1.0, 1.0 / FOOT.a0f, 1.0 / FOOT.a0b])
+    foot = lambda x, u: scale * step(PLANT, stand.active, ref.dt, x, u)[1].foot_margins  # noqa: E731
+    C, D = central_differences(foot, ref.x[0], ref.u[0])
     M = ref.u.shape[0]
     Q, R, QM = LQRWeights().matrices(5)
-    K_fd, _ = jax.jit(riccati)(jnp.tile(A, (M, 1, 1)), jnp.tile(B, (M, 1, 1)), Q, R, QM, ref.dt)
+    tile = lambda a: jnp.tile(a, (M, 1, 1))  # noqa: E731
+    W = np.eye(5) / LQRWeights().foot_N ** 2
+    K_fd, _ = jax.jit(riccati)(tile(A), tile(B), Q, R, QM, ref.dt, tile(C), tile(D), W)
     np.testing.assert_allclose(K, np.asarray(K_fd), rtol=1e-5, atol=1e-6 * np.abs(K).max())
 
 
@@ -157,6 +192,36 @@ def test_tvlqr_holds_what_the_open_loop_drops(default_run):
     assert default_run.open_loop_success_rate < 0.5
     reasons = {r["open_loop"]["reason"] for r in default_run.records[1:]}
     assert reasons <= {"foot tips", "foot slips", "foot lifts", "segment through the ground", "goal missed"}
+
+
+def test_the_start_is_blended_into_the_plan(stand):
+    """Each trial starts at rest with the torques that hold it (start_u): with the blend the first
+    torque applied is exactly that; without it (the mutation) TVLQR answers the start's offset at once."""
+    quiet = Perturbation(torque_noise_Nm=0.0)
+    res = track(stand, trials=3, seed=1, perturbation=quiet)
+    plain = track(stand, trials=3, seed=1, perturbation=quiet, start_blend_s=0.0)
+    for i in (1, 2):
+        u_hold = np.asarray(res.records[i]["perturbation"]["start_u"])
+        np.testing.assert_allclose(np.asarray(res.closed_loop.u[i][0]), u_hold, rtol=1e-12, atol=1e-9)
+        assert np.max(np.abs(np.asarray(plain.closed_loop.u[i][0]) - u_hold)) > 1.0
+    w = start_blend(np.array([0.0, 0.25, 0.5, 1.0, 2.0]), 1.0)
+    np.testing.assert_allclose(w, [1.0, 0.5 * (1 + np.cos(np.pi / 4)), 0.5, 0.0, 0.0], atol=1e-15)
+    assert not np.any(start_blend(np.array([0.0, 1.0]), 0.0))
+
+
+def test_a_lying_start_is_seated_nearby_for_a_longer_body_and_a_stiffer_ground():
+    """The supine start on a body 8 % longer in the forearm and a ground 40 % stiffer: the hand would
+    sit centimetres deep; seating moves it back by millimetres (the old unconstrained search
+    wandered radians away) and the stiffer law then carries the plan's forces scaled by the mass."""
+    task = tasks.TASKS["T3"]
+    draw = Draw([1.05] * 5, [1.0, 1.0, 1.0, 1.0, 1.08], 1.4, 1.0, 1.0, [0.0] * 5, [], False)
+    trial = perturbed_plant(PLANT, draw)
+    assert not margins(trial.model, task.start, task.active, contact=trial.contact, foot=FOOT, spec=START_SPEC).ok
+    q, moved = _seat(trial, PLANT, task.start, task.start, task.active)
+    assert moved and np.max(np.abs(q - task.start)) < MAX_SEAT_MOVE
+    seated = margins(trial.model, q, task.active, contact=trial.contact, foot=FOOT)
+    planned = margins(BODY, task.start, task.active, contact=LAW, foot=FOOT)
+    np.testing.assert_allclose(seated.forces[:, 1], 1.05 * planned.forces[:, 1], rtol=1e-6)
 
 
 def test_a_large_perturbation_fails(stand):
@@ -180,6 +245,7 @@ def test_the_saved_geometry_rebuilds_the_plant(stand, tmp_path):
         ({"substeps": 0}, "substeps"),
         ({"perturbation": Perturbation}, "perturbation"),
         ({"hold_s": -1.0}, "hold_s"),
+        ({"start_blend_s": float("nan")}, "start_blend_s"),
     ],
 )
 def test_bad_inputs_name_the_field(stand, kwargs, field):

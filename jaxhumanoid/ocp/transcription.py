@@ -17,7 +17,7 @@ Constraints of interval k, functions of (Z[k], Z[k+1]) only, in this order:
     (6b)  B(qbar_k)(qd_{k+1} - qd_k) + h (C qdbar_k + G(qbar_k) - Q(qbar_k, qdbar_k, u_k)) = 0
           or, pseudo-static, (8): G(qbar_k) - Q(qbar_k, (q_{k+1} - q_k)/h, u_k) = 0   n
     A:    f_k - (f_t, f_n)(qbar_k, qdbar_k) = 0   (laws (3)-(4) at the midpoint)    2|F|
-    (5)   steady-foot products >= 0 at the midpoint                                 5
+    (5)   steady-foot products >= 0 at the midpoint, tightened by p.foot_margin      5
     F+C:  y_Oi(q_{k+1}) >= 0 for the joints without a contact force                 n - |F|
 
 The constraint Jacobian therefore couples stage k only with stages k and k+1, and the Lagrangian
@@ -48,7 +48,8 @@ class OCPParams:
     """Everything numeric the NLP depends on (a pytree: vmap and differentiate over it).
 
     For a chain of n links: weights (n + 3,) = (w_u1..w_un, w_qd, w_dqd, w_du); T: horizon (s);
-    q_start: (n,) start posture.
+    q_start: (n,) start posture; foot_margin: how far inside the edges of (5) the foot is kept
+    (``model.foot.FootMargin``; all zero, the default, is (5) itself).
     """
 
     model: PlanarChain
@@ -57,6 +58,7 @@ class OCPParams:
     weights: jax.Array | np.ndarray
     T: jax.Array | float
     q_start: jax.Array | np.ndarray
+    foot_margin: ft.FootMargin = ft.FootMargin()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -193,7 +195,8 @@ def interval_constraints_midpoint(layout: Layout, r, p: OCPParams):
     parts = [kin_res, dyn_res]
     if layout.augmented:
         parts.append((f_used - f_law).ravel())
-    parts.append(ft.foot_constraints(p.foot, p.contact.mu, f_c0, u[0]))  # (5), at the midpoint
+    weight = p.model.total_mass * p.model.g
+    parts.append(ft.foot_constraints(p.foot, p.contact.mu, f_c0, u[0], p.foot_margin, weight))  # (5), at the midpoint
     if layout.clear_joints:
         gaps = kin.contact_gaps(p.model, p.foot, q1)
         parts.append(gaps[jnp.asarray(layout.clear_joints) - 1])
@@ -255,9 +258,11 @@ def default_params(
     weights=None,
     model: PlanarChain | None = None,
     foot: FootParams | None = None,
+    foot_margin: ft.FootMargin | None = None,
 ) -> OCPParams:
     """Parameters of ``task`` for ``model`` (default the humanoid) on ``foot`` (default the paper's),
-    with the ``contact`` law (default nominal) and the task's weights unless ``weights`` (n + 3,)."""
+    with the ``contact`` law (default nominal), the task's weights unless ``weights`` (n + 3,) and
+    the ``foot_margin`` on (5) (default none)."""
     task = tasks_mod.get_task(task)
     model = PlanarChain.humanoid() if model is None else model
     n = model.n
@@ -268,13 +273,15 @@ def default_params(
         raise ValueError(
             f"weights: expected {n + 3} finite weights >= 0 (w_u1..w_u{n}, w_qd, w_dqd, w_du), got {weights!r}"
         )
+    foot = FootParams.paper() if foot is None else foot
     return OCPParams(
         model=model,
-        foot=FootParams.paper() if foot is None else foot,
+        foot=foot,
         contact=ContactParams.nominal() if contact is None else contact,
         weights=jnp.asarray(w),
         T=jnp.asarray(float(T)),
         q_start=jnp.asarray(task.start),
+        foot_margin=ft.check_foot_margin(foot_margin, foot),
     )
 
 

@@ -12,6 +12,7 @@ import time
 import numpy as np
 
 from jaxhumanoid.diff import sensitivity_table
+from jaxhumanoid.model.foot import FootMargin
 from jaxhumanoid.model.params import PlanarChain
 from jaxhumanoid.ocp.scheme import TABLE2_SCHEMES
 from jaxhumanoid.ocp.tasks import TASKS, get_task
@@ -115,6 +116,8 @@ def solve_arguments(args) -> dict:
     settings.update({k: getattr(args, k) for k in SOLVE_DEFAULTS if getattr(args, k) is not None})
     if settings["stage1_solver"] == "same":
         settings["stage1_solver"] = None
+    if getattr(args, "foot_margin", None) is not None:
+        base["foot_margin"] = FootMargin(*args.foot_margin)
     return {**base, **settings}
 
 
@@ -351,6 +354,15 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         choices=["ipopt", "ipm", "casadi", "same"],
         help="the solver of 2S's relaxed-law stages; same: --solver (the default)",
+    )
+    p.add_argument(
+        "--foot-margin",
+        nargs=3,
+        type=float,
+        default=None,
+        metavar=("LOAD", "FRICTION", "COP"),
+        help="keep the foot inside (5): a load (body weights), a fraction of the friction cone unused, the "
+        "centre of pressure COP m from toe and heel (default 0 0 0; overrides a task file's [foot_margin])",
     )
     p.add_argument("--out", default="out/solve")
     p.add_argument("--animate", action="store_true", help="also write animation.gif")

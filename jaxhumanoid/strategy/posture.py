@@ -77,6 +77,10 @@ class MarginSpec:
     cop_margin: float = 0.02  # m inside each edge of the sole
     clearance: float = 0.01  # m above the ground for the joints without contact force
 
+    def foot_margin(self) -> ft.FootMargin:
+        """The margins on (5) alone."""
+        return ft.FootMargin(load=self.load_min, friction=self.friction_margin, cop=self.cop_margin)
+
 
 def _params(model, foot, contact, q, active) -> tr.OCPParams:
     n = model.n
@@ -97,18 +101,12 @@ def _constraints(p: tr.OCPParams, active, spec: MarginSpec):
     """c(q) >= 0 of the module docstring, in newtons (the clearance rows scaled by M g / 1 m)."""
     free = np.array([i for i in range(p.model.n) if i + 1 not in active], dtype=int)
     weight = float(np.sum(np.asarray(p.model.m)) * float(p.model.g))
-    foot, mu = p.foot, p.contact.mu
+    margin = spec.foot_margin()
 
     def c(q):
-        u, _, (f_t0, f_n0), gaps = _rest(p, q, active)
-        rows = [
-            f_n0 - spec.load_min * weight,
-            (1 - spec.friction_margin) * mu * f_n0 - f_t0,
-            (1 - spec.friction_margin) * mu * f_n0 + f_t0,
-            (foot.a0f - spec.cop_margin) * f_n0 + u[0],
-            (foot.a0b - spec.cop_margin) * f_n0 - u[0],
-        ]
-        return jnp.concatenate([jnp.stack(rows), weight * (gaps[free] - spec.clearance)])
+        u, _, f_c0, gaps = _rest(p, q, active)
+        rows = ft.foot_constraints(p.foot, p.contact.mu, f_c0, u[0], margin, weight)
+        return jnp.concatenate([rows, weight * (gaps[free] - spec.clearance)])
 
     return c
 
@@ -158,18 +156,31 @@ def reseat_for_contact(p: tr.OCPParams, q, active, new_contact: ContactParams, i
     idx = np.asarray(active, dtype=int) - 1
     gaps = np.asarray(kin.contact_gaps(p.model, p.foot, q))[idx]
     f_nom = np.asarray(ct.normal_force(p.contact, gaps))
+    q_new = seat_with_forces(p.model, p.foot, new_contact, q, active, f_nom, iters)
     loaded = f_nom > 1.0
     if not np.any(loaded):
         return q, 0.0
-    target = _inverse_normal_force(new_contact, f_nom[loaded])
-    rows = idx[loaded]
-    jac = jax.jacfwd(lambda qq: kin.contact_gaps(p.model, p.foot, qq))
+    return q_new, float(np.max(np.abs(_inverse_normal_force(new_contact, f_nom[loaded]) - gaps[loaded])))
+
+
+def seat_with_forces(model: PlanarChain, foot: FootParams, contact: ContactParams, q, active, forces, iters: int = 8):
+    """Posture q (n,) moved by the least joint motion (Gauss-Newton, minimum-norm steps) so that the
+    law ``contact`` carries the normal ``forces`` (k,) (N) at the ``active`` joints; contacts asked
+    for <= 1 N are left alone."""
+    q = np.asarray(q, dtype=float)
+    forces = np.asarray(forces, dtype=float)
+    loaded = forces > 1.0
+    if not np.any(loaded):
+        return q
+    target = _inverse_normal_force(contact, forces[loaded])
+    rows = (np.asarray(active, dtype=int) - 1)[loaded]
+    jac = jax.jacfwd(lambda qq: kin.contact_gaps(model, foot, qq))
     q_new = q.copy()
     for _ in range(iters):
-        y = np.asarray(kin.contact_gaps(p.model, p.foot, q_new))[rows]
+        y = np.asarray(kin.contact_gaps(model, foot, q_new))[rows]
         J = np.asarray(jac(jnp.asarray(q_new)))[rows]
         q_new = q_new + np.linalg.lstsq(J, target - y, rcond=None)[0]
-    return q_new, float(np.max(np.abs(target - gaps[loaded])))
+    return q_new
 
 
 def find_equilibrium(
@@ -233,3 +244,19 @@ def find_equilibrium(
         q_relaxed=q_rel,
         relaxed=margins(model, q_rel, active, relaxed, foot, spec),
     )
+
+
+def check_start_margin(task: Task, model: PlanarChain, margin: ft.FootMargin, contact=None, foot=None) -> None:
+    """Raise a ValueError when the task's start posture, at rest under ``contact`` on ``foot``, does not
+    keep the foot within ``margin``: a plan's first interval is frozen at its start (qd_0 = 0, u_0 the
+    equilibrium torques), so a plan with margin needs a start that has it."""
+    spec = MarginSpec(load_min=margin.load, friction_margin=margin.friction, cop_margin=margin.cop, clearance=0.0)
+    m = margins(model, task.start, task.active, contact=contact, foot=foot, spec=spec)
+    if not m.ok:
+        foot = FootParams.paper() if foot is None else foot
+        raise ValueError(
+            f"foot_margin: the start posture of task {task.key} keeps a foot load of {m.load:.3f} M g, uses "
+            f"{m.friction:.3f} of the friction cone and has its centre of pressure at {m.cop:+.4f} m in "
+            f"[{-float(foot.a0f):.3f}, {float(foot.a0b):.3f}]; allowed: load <= {m.load:.3f}, "
+            f"friction <= {1 - m.friction:.3f}, cop <= {min(m.cop + float(foot.a0f), float(foot.a0b) - m.cop):.4f} m"
+        )

@@ -9,6 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxhumanoid.derivatives.stagewise import stagewise_nlp
+from jaxhumanoid.model.foot import FootMargin
 from jaxhumanoid.model.params import ContactParams, FootParams, PlanarChain
 from jaxhumanoid.ocp import tasks as tasks_mod
 from jaxhumanoid.ocp import transcription as tr
@@ -84,6 +85,7 @@ def build_problem(
     model: PlanarChain | None = None,
     foot: FootParams | None = None,
     guess: str = "linear",
+    foot_margin: FootMargin | None = None,
 ) -> Problem:
     """The NLP (7) of one task under one scheme on an N-interval grid (one stage of a strategy).
 
@@ -93,7 +95,8 @@ def build_problem(
     posture (used by the 2S stage 1 re-seating). ``guess`` is the initial guess (``GUESSES``):
     ``"linear"``, Sec. II-G's q linear from start to goal with u and f zero; ``"inverse_dynamics"``,
     the same motion with u and f that satisfy its dynamics and force rows
-    (``transcription.inverse_dynamics_guess``).
+    (``transcription.inverse_dynamics_guess``). ``foot_margin`` tightens the steady-foot rows (5)
+    (``model.foot.FootMargin``; default none).
     """
     task = tasks_mod.get_task(task)
     scheme = parse_scheme(scheme)
@@ -103,7 +106,7 @@ def build_problem(
         raise ValueError(f"N: expected an integer number of intervals >= 3, got {N!r}")
     if not np.isfinite(T) or T <= 0:
         raise ValueError(f"T: expected a positive horizon in seconds, got {T!r}")
-    p = tr.default_params(task, contact=contact, T=T, weights=weights, model=model, foot=foot)
+    p = tr.default_params(task, contact=contact, T=T, weights=weights, model=model, foot=foot, foot_margin=foot_margin)
     n = p.model.n
     layout = tr.Layout(
         N=int(N),

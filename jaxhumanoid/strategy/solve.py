@@ -35,7 +35,7 @@ from jaxhumanoid.ocp.tasks import Task, Weights, get_task
 from jaxhumanoid.solvers.ipm import solve_ipm
 from jaxhumanoid.solvers.ipopt import solve_ipopt
 from jaxhumanoid.solvers.result import IterationCallback, NLPResult, constraint_violation
-from jaxhumanoid.strategy.posture import find_equilibrium, margins, reseat_for_contact
+from jaxhumanoid.strategy.posture import check_start_margin, find_equilibrium, margins, reseat_for_contact
 from jaxhumanoid.strategy.problem import GUESSES, Problem, build_problem
 from jaxhumanoid.strategy.solution import Solution, StageStats
 from jaxhumanoid.validation.casadi_backend import solve_casadi
@@ -196,6 +196,7 @@ def make_solution(problem: Problem, x, stages, solver: str, warm_start=None) -> 
             "xhat": float(p.contact.xhat),
             "goal": np.asarray(problem.task.goal),
             "goal_tolerance": float(problem.task.goal_tolerance),
+            **{f"margin_{k}": float(getattr(p.foot_margin, k)) for k in ft.MARGIN_FIELDS},
         },
         warm_start=warm_start,
     )
@@ -253,6 +254,7 @@ def stage_one_problem(task, scheme, final: Problem, N1: int, contact_stage1=None
         model=final.model,
         foot=final.p.foot,
         guess=guess,
+        foot_margin=final.p.foot_margin,
     )
 
 
@@ -348,6 +350,7 @@ def solve(
     continuation_steps: int = CONTINUATION_STEPS,
     stage1_solver: str | None = None,
     progress: StageProgress | None = None,
+    foot_margin: ft.FootMargin | None = None,
 ) -> Solution:
     """Solve one task with one strategy.
 
@@ -367,7 +370,8 @@ def solve(
     is moved to the nearest posture that does (``posture.find_equilibrium``; a warning says so),
     or a ValueError says none was found. ``progress`` (e.g. ``jaxhumanoid.progress.IterationLine``)
     is called after every solver iteration with (stage name, iteration, objective, primal
-    infeasibility). Every argument is checked before any work starts."""
+    infeasibility). ``foot_margin`` (``model.foot.FootMargin``, default none) keeps the foot that
+    far inside the edges of (5) in both stages. Every argument is checked before any work starts."""
     task = get_task(task)
     scheme = parse_scheme(scheme)
     if solver not in SOLVERS:
@@ -397,9 +401,23 @@ def solve(
     T = float(T)
     N1 = min(STAGE1_N, int(N)) if N1 is None else int(N1)
     weights = _weights_array(weights, task.n if model is None else model.n)
+    foot_margin = ft.check_foot_margin(foot_margin, FootParams.paper() if foot is None else foot)
     task = _seated_task(task, model, contact, foot)
+    if not foot_margin.is_zero:
+        check_start_margin(task, PlanarChain.humanoid() if model is None else model, foot_margin, contact, foot)
     t0 = time.perf_counter()
-    final = build_problem(task, scheme, N=N, T=T, weights=weights, model=model, contact=contact, foot=foot, guess=guess)
+    final = build_problem(
+        task,
+        scheme,
+        N=N,
+        T=T,
+        weights=weights,
+        model=model,
+        contact=contact,
+        foot=foot,
+        guess=guess,
+        foot_margin=foot_margin,
+    )
     setup_final = time.perf_counter() - t0
     stages, warm = [], None
     x0 = final.bounds.x0

@@ -10,6 +10,8 @@
     u_max = [...]                        #   joint strengths (N m): torque box [-u_max, u_max]
     scale_m = 1.1                        #   multiply every mass (and inertia) by a factor
     [foot]     a0f = 0.2; a0b = 0.05; ankle_height = 0.08          # optional
+    [foot_margin]  load = 0.1; friction = 0.1; cop = 0.02  # optional: keep the plan's foot inside (5)
+               # by a load (M g), a fraction of the friction cone, a distance (m) from toe and heel
     [contact]  kappa = 7e4; f0 = 100.0; xhat = 0.05; mu = 0.8      # optional; default nominal
     [contact_stage1]  ...                                           # optional; default relaxed
     [task]
@@ -37,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from jaxhumanoid.model.foot import FootMargin, check_foot_margin
 from jaxhumanoid.model.params import ContactParams, FootParams, PlanarChain
 from jaxhumanoid.ocp import tasks
 from jaxhumanoid.ocp.tasks import Task, Weights
@@ -61,6 +64,7 @@ TABLES = {
         "scale_m",
     },
     "foot": {"a0f", "a0b", "ankle_height"},
+    "foot_margin": {"load", "friction", "cop"},
     "contact": {"kappa", "f0", "xhat", "mu"},
     "contact_stage1": {"kappa", "f0", "xhat", "mu"},
     "task": {
@@ -93,8 +97,10 @@ class TaskFile:
     contact_stage1: ContactParams | None
     settings: dict
     options: dict
+    foot_margin: FootMargin | None = None
 
     def as_solve_kwargs(self) -> dict[str, Any]:
+        margin = {} if self.foot_margin is None else {"foot_margin": self.foot_margin}
         return dict(
             task=self.task,
             model=self.model,
@@ -102,6 +108,7 @@ class TaskFile:
             contact=self.contact,
             contact_stage1=self.contact_stage1,
             options=self.options or None,
+            **margin,
             **self.settings,
         )
 
@@ -189,6 +196,9 @@ def load_task_file(path) -> TaskFile:
         foot = _params(data.get("foot"), FootParams.paper)
         contact = _params(data.get("contact"), ContactParams.nominal)
         stage1 = _params(data.get("contact_stage1"), ContactParams.relaxed)
+        margin = _params(data.get("foot_margin"), FootMargin)
+        if margin is not None:
+            check_foot_margin(margin, foot or FootParams.paper())
         t = data["task"]
         where = f"{path}: [task]"
         start, goal = _angles(where, t, "start", model.n), _angles(where, t, "goal", model.n)
@@ -208,4 +218,4 @@ def load_task_file(path) -> TaskFile:
     except (TypeError, ValueError) as err:
         raise ValueError(f"{path}: {err}") from err
     settings = dict(data.get("solve", {}))
-    return TaskFile(path, task, model, foot, contact, stage1, settings, dict(data.get("options", {})))
+    return TaskFile(path, task, model, foot, contact, stage1, settings, dict(data.get("options", {})), margin)

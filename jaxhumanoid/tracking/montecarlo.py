@@ -4,11 +4,14 @@ Each trial draws (uniformly, from one seeded generator) link masses and lengths 
 1 +- ``mass_length`` (lengths scale a and c together; inertia scales with mass x length^2),
 kappa and f0 scaled by 1 +- ``contact``, mu by 1 +- ``friction``, a start posture moved by up to
 ``start_rad`` per joint and then put back into static equilibrium for the *perturbed* body and law
-(``strategy.posture``: kept when it already keeps the foot steady with margin, else the nearest
-such posture; a draw whose body and law can hold none near it is drawn again and counted in
-``rejected_draws``), and Gaussian torque noise of ``torque_noise_Nm`` per joint, held over each plan interval.
-Both policies run on the same draws, all trials as one ``vmap`` batch; the gains are computed once,
-for the nominal body (the controller does not know the perturbation).
+(``_seat``: kept when it already keeps the foot steady with the small margins of ``START_SPEC``,
+else its loaded contacts are moved back by millimetres to carry the plan's start forces, and only
+then the nearest such posture is searched; a draw whose body and law can hold none within
+``MAX_SEAT_MOVE`` is drawn again and counted in ``rejected_draws``), and Gaussian torque noise of
+``torque_noise_Nm`` per joint, held over each plan interval. Each trial starts at rest with the
+torques that hold it there, and that start is blended into the plan over ``start_blend_s``
+(``simulator.rollout``). Both policies run on the same draws, all trials as one ``vmap`` batch;
+the gains are computed once, for the nominal body (the controller does not know the perturbation).
 
 A trial succeeds when, at the end of the plan plus the hold, every joint angle lies within the goal
 box widened by ``goal_slack`` (the plans end on the box's faces, so an unwidened box turns any
@@ -34,7 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxhumanoid.model.params import ContactParams
-from jaxhumanoid.strategy.posture import find_equilibrium, margins
+from jaxhumanoid.strategy.posture import MarginSpec, find_equilibrium, margins, seat_with_forces
 from jaxhumanoid.strategy.solution import Solution
 from jaxhumanoid.tracking.lqr import DEFAULT_WEIGHTS, LQRWeights, check_number_fields, tvlqr_gains
 from jaxhumanoid.tracking.plan import Goal, check_substeps, plant_and_goal, reference
@@ -90,6 +93,7 @@ class Draw:
     start_offset: list[float]
     start_q: list[float]
     start_reseated: bool
+    start_u: list[float] = dataclasses.field(default_factory=list)  # torques holding start_q at rest (N m)
 
 
 def perturbed_plant(plant: Plant, d: Draw) -> Plant:
@@ -103,12 +107,34 @@ def perturbed_plant(plant: Plant, d: Draw) -> Plant:
     return Plant(model, plant.foot, contact)
 
 
-def _seat(plant: Plant, q_guess, active) -> tuple[np.ndarray, bool]:
-    """q_guess when it is a static equilibrium with the foot steady for the plant, else the nearest
-    such posture (``find_equilibrium`` raises a ValueError when there is none near q_guess)."""
-    if margins(plant.model, q_guess, active, contact=plant.contact, foot=plant.foot).ok:
-        return np.asarray(q_guess), False
-    return find_equilibrium(plant.model, q_guess, active, contact=plant.contact, foot=plant.foot).q, True
+MAX_SEAT_MOVE = 0.05  # rad: a re-seated start further than this from the moved plan start is rejected
+START_SPEC = MarginSpec(load_min=0.02, friction_margin=0.05, cop_margin=0.005, clearance=0.005)
+
+
+def _seat(plant: Plant, nominal: Plant, q_plan, q_guess, active) -> tuple[np.ndarray, bool]:
+    """A static start posture near q_guess (n,) for ``plant``: q_guess when it keeps the foot steady
+    (``START_SPEC``), else the nearest such posture; a ValueError when none lies within
+    MAX_SEAT_MOVE of q_guess.
+
+    A moved or rescaled body lying on the ground presses a contact centimetres into it or lifts it
+    off: the loaded contacts are first put back, by the least joint motion, where the plant's law
+    carries the normal forces the plan's start q_plan carries on the ``nominal`` plant, scaled by
+    the ratio of the body masses (``seat_with_forces``). Only when that posture still does not keep
+    the foot steady does ``find_equilibrium`` search, from there.
+    """
+    seat = lambda q: margins(plant.model, q, active, contact=plant.contact, foot=plant.foot, spec=START_SPEC).ok  # noqa: E731
+    q_guess = np.asarray(q_guess, dtype=float)
+    if seat(q_guess):
+        return q_guess, False
+    forces = margins(nominal.model, q_plan, active, contact=nominal.contact, foot=nominal.foot).forces[:, 1]
+    ratio = float(np.sum(np.asarray(plant.model.m)) / np.sum(np.asarray(nominal.model.m)))
+    q = seat_with_forces(plant.model, plant.foot, plant.contact, q_guess, active, ratio * forces)
+    if not seat(q):
+        q = find_equilibrium(plant.model, q, active, contact=plant.contact, foot=plant.foot, spec=START_SPEC).q
+    moved = float(np.max(np.abs(q - q_guess)))
+    if moved > MAX_SEAT_MOVE:
+        raise ValueError(f"start: the nearest seated posture is {moved:.3f} rad away (> {MAX_SEAT_MOVE} rad)")
+    return q, True
 
 
 MAX_REJECTED_PER_TRIAL = 10
@@ -129,13 +155,15 @@ def draw_trials(plant: Plant, q_start, active, trials: int, perturbation: Pertur
         offset = w * p.start_rad * rng.uniform(-1, 1, n)
         d = Draw(sm.tolist(), sl.tolist(), float(sk), float(sf), float(smu), offset.tolist(), [], False)
         try:
-            q0, moved = _seat(perturbed_plant(plant, d), np.asarray(q_start) + offset, active)
+            trial = perturbed_plant(plant, d)
+            q0, moved = _seat(trial, plant, q_start, np.asarray(q_start) + offset, active)
         except ValueError:
             rejected += 1
             if rejected > MAX_REJECTED_PER_TRIAL * trials or not out:
                 raise
             continue
         d.start_q, d.start_reseated = q0.tolist(), bool(moved)
+        d.start_u = margins(trial.model, q0, active, contact=trial.contact, foot=trial.foot).u.tolist()
         out.append(d)
     return out, rejected
 
@@ -145,9 +173,20 @@ def _stack(plants: list[Plant]) -> Plant:
 
 
 @functools.partial(jax.jit, static_argnums=1)
-def batch_rollout(plants: Plant, active: tuple, ref: Reference, x0, gains, noise, u_max) -> Rollout:
-    """``rollout`` over a batch of plants (stacked leaves), starts (K, 2n) and noise (K, M, n)."""
-    return jax.vmap(lambda pl, x, w: rollout(pl, active, ref, x, gains, w, u_max))(plants, x0, noise)
+def batch_rollout(plants: Plant, active: tuple, ref: Reference, x0, gains, noise, u_max, u_hold, blend) -> Rollout:
+    """``rollout`` over a batch of plants (stacked leaves), starts (K, 2n), noise (K, M, n) and
+    holding torques (K, n), with one start blend (M,)."""
+    run = lambda pl, x, w, uh: rollout(pl, active, ref, x, gains, w, u_max, uh, blend)  # noqa: E731
+    return jax.vmap(run)(plants, x0, noise, u_hold)
+
+
+def start_blend(t, blend_s: float) -> np.ndarray:
+    """The weight of the start offset at the step times t (M,): 1 at t = 0, falling as
+    (1 + cos(pi t / blend_s)) / 2 to 0 at blend_s (zero everywhere when blend_s = 0)."""
+    t = np.asarray(t, dtype=float)
+    if blend_s <= 0:
+        return np.zeros_like(t)
+    return np.where(t < blend_s, 0.5 * (1.0 + np.cos(np.pi * np.minimum(t, blend_s) / blend_s)), 0.0)
 
 
 _gains = jax.jit(tvlqr_gains, static_argnums=(1, 3))
@@ -202,6 +241,7 @@ class TrackingResult:
     seed: int
     substeps: int
     hold_s: float
+    start_blend_s: float
     perturbation: dict
     criteria: dict
     weights: dict
@@ -260,13 +300,16 @@ def track(
     criteria: Criteria = Criteria(),
     weights: LQRWeights = DEFAULT_WEIGHTS,
     progress=None,
+    start_blend_s: float = 1.0,
 ) -> TrackingResult:
     """Run ``trials`` perturbed executions of a plan open loop and under TVLQR (module docstring).
 
     ``solution_or_dir``: a ``Solution`` or a directory written by ``jaxhumanoid solve``;
     ``substeps``: simulator steps per plan interval; ``hold_s``: seconds the final state is held
     after the horizon; ``progress``: an ``jaxhumanoid.progress.Progress``-like object with
-    ``start(label)`` / ``finish(message)`` (or None). Every argument is checked before any work.
+    ``start(label)`` / ``finish(message)`` (or None); ``start_blend_s``: seconds over which the
+    trial's start (its posture and holding torques) is blended into the plan (``start_blend``; 0:
+    the policy aims at the plan's start from the first step). Every argument is checked before any work.
     """
     trials, seed = _check_int("trials", trials, 1), _check_int("seed", seed, 0)
     substeps = check_substeps(substeps)
@@ -275,6 +318,9 @@ def track(
             raise ValueError(f"{name}: expected a {cls.__name__}, got {type(value).__name__}")
     if not isinstance(weights, LQRWeights):
         raise ValueError(f"weights: expected an LQRWeights, got {type(weights).__name__}")
+    b = start_blend_s
+    if isinstance(b, bool) or not isinstance(b, (int, float)) or not np.isfinite(b) or b < 0:
+        raise ValueError(f"start_blend_s: expected a finite time >= 0 (s), got {b!r}")
     sol = as_solution(solution_or_dir)
     plant, goal = plant_and_goal(sol)
     ref = reference(sol, substeps, hold_s)
@@ -301,8 +347,11 @@ def track(
     held[0] = 0.0
     noise = jnp.asarray(np.repeat(held, substeps, axis=1)[:, :M] * perturbation.torque_noise_Nm)
     u_max = jnp.asarray(plant.model.u_max)
-    open_r = stage("open loop", lambda: batch_rollout(plants, active, ref, x0, jnp.zeros_like(gains), noise, u_max))
-    closed_r = stage("closed loop", lambda: batch_rollout(plants, active, ref, x0, gains, noise, u_max))
+    u_hold = jnp.asarray([d.start_u for d in draws])
+    blend = jnp.asarray(start_blend(np.asarray(ref.t[:-1]) - float(ref.t[0]), start_blend_s))
+    run = lambda K: batch_rollout(plants, active, ref, x0, K, noise, u_max, u_hold, blend)  # noqa: E731
+    open_r = stage("open loop", lambda: run(jnp.zeros_like(gains)))
+    closed_r = stage("closed loop", lambda: run(gains))
     t = np.asarray(ref.t)
     records: list[dict[str, Any]] = []
     for i, d in enumerate(draws):
@@ -323,6 +372,7 @@ def track(
         seed=seed,
         substeps=substeps,
         hold_s=float(hold_s),
+        start_blend_s=float(start_blend_s),
         perturbation=dataclasses.asdict(perturbation),
         criteria=dataclasses.asdict(criteria),
         weights=dataclasses.asdict(weights),

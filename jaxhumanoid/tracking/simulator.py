@@ -156,24 +156,31 @@ class Rollout(NamedTuple):
     residual: jax.Array
 
 
-def rollout(plant: Plant, active: tuple, ref: Reference, x0, gains, noise, u_max) -> Rollout:
+def rollout(plant: Plant, active: tuple, ref: Reference, x0, gains, noise, u_max, u_hold=None, blend=None) -> Rollout:
     """Run the policy u_j = clip(u_ref_j + K_j (x_j - x_ref_j) + noise_j, -u_max, u_max) from x0.
 
     x0: (2n,); gains: (M, n, 2n) (zeros for the open-loop replay of the planned torques);
-    noise: (M, n) torque noise (N m); u_max: (n,) the body's strengths. A step whose Newton solve
-    ends in non-finite numbers keeps the state it started from (its residual says so), so one
-    diverged trial neither poisons a batch nor hides behind NaNs.
+    noise: (M, n) torque noise (N m); u_max: (n,) the body's strengths. With ``u_hold`` (n,), the
+    torques that hold the body at rest in x0, and ``blend`` (M,) falling from 1 to 0, the start is
+    blended into the plan: the reference is moved by blend_j (x0 - x_ref_0, u_hold - u_ref_0), so
+    that the policy starts exactly where the body is, at rest and with the torques it holds, and
+    joins the plan as the blend falls. A step whose Newton solve ends in non-finite numbers keeps
+    the state it started from (its residual says so), so one diverged trial neither poisons a batch
+    nor hides behind NaNs.
     """
     dt = ref.dt
+    if blend is None:
+        blend, u_hold = jnp.zeros(ref.u.shape[0]), ref.u[0]
+    dx0, du0 = x0 - ref.x[0], u_hold - ref.u[0]
 
     def body(x, inputs):
-        x_ref, u_ref, K, w = inputs
-        u = jnp.clip(u_ref + K @ (x - x_ref) + w, -u_max, u_max)
+        x_ref, u_ref, K, w, b = inputs
+        u = jnp.clip(u_ref + b * du0 + K @ (x - x_ref - b * dx0) + w, -u_max, u_max)
         x1, info = step(plant, active, dt, x, u)
         ok = jnp.all(jnp.isfinite(x1))
         x1 = jnp.where(ok, x1, x)
         resid = jnp.where(ok, info.residual, jnp.inf)
         return x1, (x1, u, info.foot_margins, info.gaps, resid)
 
-    _, (xs, us, margins, gaps, resid) = jax.lax.scan(body, x0, (ref.x[:-1], ref.u, gains, noise))
+    _, (xs, us, margins, gaps, resid) = jax.lax.scan(body, x0, (ref.x[:-1], ref.u, gains, noise, blend))
     return Rollout(jnp.concatenate([x0[None], xs]), us, margins, gaps, resid)

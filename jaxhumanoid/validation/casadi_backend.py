@@ -54,6 +54,9 @@ class _Numbers:
     weights: np.ndarray
     T: float
     q_start: np.ndarray
+    margin_load: float  # the foot margin (``model.foot.FootMargin``): minimum f_n0 (N),
+    margin_friction: float  # the fraction of mu kept unused,
+    margin_cop: float  # the distance (m) of the centre of pressure from toe and heel
 
     @property
     def n(self) -> int:
@@ -79,6 +82,9 @@ def _numbers(p) -> _Numbers:
         weights=arr(p.weights),
         T=float(p.T),
         q_start=arr(p.q_start),
+        margin_load=float(p.foot_margin.load) * float(np.sum(arr(p.model.m))) * float(p.model.g),
+        margin_friction=float(p.foot_margin.friction),
+        margin_cop=float(p.foot_margin.cop),
     )
 
 
@@ -163,9 +169,10 @@ def _foot_reaction(nb: _Numbers, model: _Model, q, qd, qdd, forces):
 
 
 def _foot_constraints(nb: _Numbers, f_c0, u1):
-    """(5a)-(5c) in product form, each >= 0."""
+    """(5a)-(5c) in product form, each >= 0, tightened by the foot margin."""
     f_t0, f_n0 = f_c0[0], f_c0[1]
-    return ca.vertcat(f_n0, nb.mu * f_n0 - f_t0, nb.mu * f_n0 + f_t0, nb.a0f * f_n0 + u1, nb.a0b * f_n0 - u1)
+    mu, a0f, a0b = (1.0 - nb.margin_friction) * nb.mu, nb.a0f - nb.margin_cop, nb.a0b - nb.margin_cop
+    return ca.vertcat(f_n0 - nb.margin_load, mu * f_n0 - f_t0, mu * f_n0 + f_t0, a0f * f_n0 + u1, a0b * f_n0 - u1)
 
 
 def equilibrium_torques(nb: _Numbers, model: _Model, q, active) -> np.ndarray:
