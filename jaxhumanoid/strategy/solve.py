@@ -67,6 +67,7 @@ HANDOVERS = ("direct", "continuation")
 CONTINUATION_STEPS = 4
 # Later laws of the continuation start next to their optimum: a small barrier keeps them there.
 CONTINUATION_OPTIONS = {"mu_init": 1e-5}
+_LAW_FIELDS = tuple(f.name for f in dataclasses.fields(ContactParams))
 
 
 StageProgress = Callable[[str, int, float, float], None]
@@ -217,10 +218,7 @@ def law_path(first: ContactParams, last: ContactParams, steps: int) -> tuple[Con
     (kappa, f0, xhat, mu), l = j / steps; geometric because kappa and f0 set the scale of forces."""
 
     def at(lam: float) -> ContactParams:
-        mix = {
-            k: float(getattr(first, k)) ** (1 - lam) * float(getattr(last, k)) ** lam
-            for k in ("kappa", "f0", "xhat", "mu")
-        }
+        mix = {k: float(getattr(first, k)) ** (1 - lam) * float(getattr(last, k)) ** lam for k in _LAW_FIELDS}
         return ContactParams(**mix)
 
     return tuple(at(j / steps) for j in range(steps)) + (last,)
@@ -230,7 +228,7 @@ def with_law(problem: Problem, law: ContactParams) -> Problem:
     """``problem`` under another contact law, its start posture re-seated so that the law carries
     the same contact forces there (``posture.reseat_for_contact``): the start stays a static
     equilibrium with the same torques and foot margins. The NLP is the same; only p changes."""
-    if all(np.array_equal(getattr(law, k), getattr(problem.p.contact, k)) for k in ("kappa", "f0", "xhat", "mu")):
+    if all(np.array_equal(getattr(law, k), getattr(problem.p.contact, k)) for k in _LAW_FIELDS):
         return problem
     q_start, _ = reseat_for_contact(problem.p, problem.p.q_start, problem.layout.active, law)
     return dataclasses.replace(problem, p=dataclasses.replace(problem.p, contact=law, q_start=jnp.asarray(q_start)))
@@ -274,10 +272,15 @@ def _stage_one(task, scheme, solver, final: Problem, N1: int, options, contact_s
     return stats, first.full(attempts[-1].x)
 
 
+def _is_count(value, low: int) -> bool:
+    """Whether ``value`` is an integer (not a bool) >= low."""
+    return bool(not isinstance(value, bool) and isinstance(value, (int, np.integer)) and value >= low)
+
+
 def _check_inputs(N, T, N1, model, contact, foot, contact_stage1, options) -> None:
     """Every argument of ``solve`` checked before any work, each error naming its field."""
     for name, value in (("N", N), ("N1", N1)):
-        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 3):
+        if value is not None and not _is_count(value, 3):
             raise ValueError(f"{name}: expected an integer number of intervals >= 3, got {value!r}")
     if isinstance(T, bool) or not isinstance(T, (int, float, np.integer, np.floating)) or not np.isfinite(T) or T <= 0:
         raise ValueError(f"T: expected a positive horizon in seconds (a number), got {T!r}")
@@ -382,11 +385,7 @@ def solve(
         raise ValueError(f"guess: {guess!r} not in {GUESSES}")
     if handover not in HANDOVERS:
         raise ValueError(f"handover: {handover!r} not in {HANDOVERS}")
-    if (
-        isinstance(continuation_steps, bool)
-        or not isinstance(continuation_steps, (int, np.integer))
-        or continuation_steps < 1
-    ):
+    if not _is_count(continuation_steps, 1):
         raise ValueError(f"continuation_steps: expected an integer >= 1, got {continuation_steps!r}")
     _check_inputs(
         N,
@@ -443,15 +442,15 @@ def solve(
     return make_solution(final, res.x, stages, solver, warm_start=warm)
 
 
-def _run_path(solver, final: Problem, laws, x0, options, verbose, progress, label: str) -> list[NLPResult]:
-    """Solve ``final`` under each law of ``laws`` in turn, each from the last one's solution (the
-    first from x0, the later ones with ``CONTINUATION_OPTIONS``); stop at the first failed solve."""
+def _run_path(solver, problems: list[Problem], x0, options, verbose, progress, label: str) -> list[NLPResult]:
+    """Solve each problem of a law path in turn, each from the last one's solution (the first from
+    x0, the later ones with ``CONTINUATION_OPTIONS``); stop at the first failed solve."""
     attempts: list[NLPResult] = []
     x = x0
-    for j, law in enumerate(laws):
-        name = label if j == len(laws) - 1 else f"{label}, law {j + 1}/{len(laws)}"
+    for j, problem in enumerate(problems):
+        name = label if j == len(problems) - 1 else f"{label}, law {j + 1}/{len(problems)}"
         opts = options if j == 0 else {**options, **CONTINUATION_OPTIONS}
-        attempts.append(_run_solver(solver, with_law(final, law), x, opts, verbose, _for_stage(progress, name)))
+        attempts.append(_run_solver(solver, problem, x, opts, verbose, _for_stage(progress, name)))
         x = attempts[-1].x
         if not attempts[-1].success:
             break
@@ -462,14 +461,15 @@ def _continuation_stages(solvers, final: Problem, laws, x0, options, setup_time_
     """The dynamic stages of a continuation hand-over: the first law (stage 1's) by ``solvers[0]``,
     then the path to the nominal law by ``solvers[1]``. Returns (stats of both, x); a failed solve
     ends the path, and its stage reports its status with the law it failed at."""
+    problems = [with_law(final, law) for law in laws]
     stats: list[StageStats] = []
     x = x0
     for solver, part, name in (
-        (solvers[0], laws[:1], "stage 1 (dynamic, relaxed law)"),
-        (solvers[1], laws[1:], "stage 2 (dynamic)"),
+        (solvers[0], problems[:1], "stage 1 (dynamic, relaxed law)"),
+        (solvers[1], problems[1:], "stage 2 (dynamic)"),
     ):
-        attempts = _run_path(solver, with_law(final, part[-1]), part, x, options, verbose, progress, name)
-        st = _stage_stats(name, with_law(final, part[-1]), attempts, setup_time_s if not stats else 0.0, x)
+        attempts = _run_path(solver, part, x, options, verbose, progress, name)
+        st = _stage_stats(name, part[-1], attempts, setup_time_s if not stats else 0.0, x)
         if len(attempts) < len(part):
             st = dataclasses.replace(st, status=f"{st.status} (law {len(attempts)}/{len(part)})", success=False)
         stats.append(st)
