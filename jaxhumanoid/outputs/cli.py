@@ -14,6 +14,7 @@ import numpy as np
 from jaxhumanoid.diff import sensitivity_table
 from jaxhumanoid.model.foot import FootMargin
 from jaxhumanoid.model.params import PlanarChain
+from jaxhumanoid.ocp.scaling import SCALINGS
 from jaxhumanoid.ocp.scheme import TABLE2_SCHEMES
 from jaxhumanoid.ocp.tasks import TASKS, get_task
 from jaxhumanoid.outputs import plots, timeline, tracking_plots
@@ -99,6 +100,7 @@ SOLVE_DEFAULTS = {
     "guess": "linear",
     "handover": "direct",
     "stage1_solver": None,
+    "scaling": "none",
 }
 
 
@@ -354,6 +356,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         choices=["ipopt", "ipm", "casadi", "same"],
         help="the solver of 2S's relaxed-law stages; same: --solver (the default)",
+    )
+    p.add_argument(
+        "--scaling",
+        default=None,
+        choices=list(SCALINGS),
+        help="none (default): the NLPs as posed; physical: in units of O(1) (torques in 10 N m, forces in 100 N)",
     )
     p.add_argument(
         "--foot-margin",

@@ -54,3 +54,31 @@ def constraint_violation(g_val, x, gl, gu, xl, xu) -> float:
         if v.size:
             worst = max(worst, float(v.max()))
     return worst
+
+
+def unscaled(res: NLPResult, s, max_constraint_violation: float) -> NLPResult:
+    """``res`` of the scaled problem of ``ocp.scaling`` (factors ``s``: obj, x, g) in the original
+    variables: x = x~ / Dx, lam = Dg lam~ / sf, z = Dx z~ / sf, f = f~ / sf;
+    ``max_constraint_violation`` is the original problem's at x (the caller evaluates g there)."""
+    sx, sg, sf = np.asarray(s.x), np.asarray(s.g), float(s.obj)
+    history = dict(res.history or {})
+    if "objective" in history:
+        history["objective"] = np.asarray(history["objective"]) / sf
+    return dataclasses.replace(
+        res,
+        x=np.asarray(res.x) / sx,
+        lam_g=sg * np.asarray(res.lam_g) / sf,
+        z_l=sx * np.asarray(res.z_l) / sf,
+        z_u=sx * np.asarray(res.z_u) / sf,
+        objective=float(res.objective) / sf,
+        max_constraint_violation=float(max_constraint_violation),
+        history=history if res.history is not None else None,
+    )
+
+
+def unscaled_progress(progress: IterationCallback | None, sf: float) -> IterationCallback | None:
+    """``progress`` fed by a solver of the scaled problem: the objective back in its own units
+    (the infeasibility stays in the solver's, the scaled rows')."""
+    if progress is None:
+        return None
+    return lambda it, obj, inf: progress(it, obj / sf, inf)

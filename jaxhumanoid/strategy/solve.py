@@ -20,6 +20,7 @@ import functools
 import time
 import warnings
 from collections.abc import Callable
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -30,11 +31,12 @@ from jaxhumanoid.model import foot as ft
 from jaxhumanoid.model import kinematics as kin
 from jaxhumanoid.model.params import ContactParams, FootParams, PlanarChain
 from jaxhumanoid.ocp import transcription as tr
+from jaxhumanoid.ocp.scaling import as_jax, check_scaling, physical_scaling, scaled_bounds, scaled_nlp
 from jaxhumanoid.ocp.scheme import parse_scheme
 from jaxhumanoid.ocp.tasks import Task, Weights, get_task
 from jaxhumanoid.solvers.ipm import solve_ipm
 from jaxhumanoid.solvers.ipopt import solve_ipopt
-from jaxhumanoid.solvers.result import IterationCallback, NLPResult, constraint_violation
+from jaxhumanoid.solvers.result import IterationCallback, NLPResult, constraint_violation, unscaled, unscaled_progress
 from jaxhumanoid.strategy.posture import check_start_margin, find_equilibrium, margins, reseat_for_contact
 from jaxhumanoid.strategy.problem import GUESSES, Problem, build_problem
 from jaxhumanoid.strategy.solution import Solution, StageStats
@@ -75,16 +77,35 @@ StageProgress = Callable[[str, int, float, float], None]
 
 
 def _run_solver(
-    solver: str, problem: Problem, x0, options, verbose, progress: IterationCallback | None = None
+    solver: str,
+    problem: Problem,
+    x0,
+    options,
+    verbose,
+    progress: IterationCallback | None = None,
+    scaling: str = "none",
 ) -> NLPResult:
-    if solver == "ipopt":
-        nlp, p, b = problem.nlp, problem.p, problem.bounds
-        return solve_ipopt(nlp, p, b, x0=x0, options=options, verbose=verbose, progress=progress)
-    if solver == "ipm":
-        return solve_ipm(problem.nlp, problem.p, problem.bounds, x0=x0, options=options, progress=progress)
+    """One solve of ``problem`` from x0 by ``solver``; with ``scaling="physical"`` the solver runs
+    the scaled problem (``ocp.scaling``) and the result comes back in the problem's own units."""
+    if solver not in SOLVERS:
+        raise ValueError(f"solver: {solver!r} not in {SOLVERS}")
+    s = None if scaling == "none" else physical_scaling(problem.layout, float(problem.p.T))
+    run = progress if s is None else unscaled_progress(progress, s.obj)
     if solver == "casadi":
-        return solve_casadi(problem, x0=x0, options=options, verbose=verbose, progress=progress)
-    raise ValueError(f"solver: {solver!r} not in {SOLVERS}")
+        return solve_casadi(problem, x0=x0, options=options, verbose=verbose, progress=run, scaling=s)
+    nlp, bounds, y0 = problem.nlp, problem.bounds, np.asarray(x0)
+    p: Any = problem.p
+    if s is not None:
+        nlp, p, bounds, y0 = scaled_nlp(nlp), (p, as_jax(s)), scaled_bounds(bounds, s), y0 * s.x
+    if solver == "ipopt":
+        res = solve_ipopt(nlp, p, bounds, x0=y0, options=options, verbose=verbose, progress=run)
+    else:
+        res = solve_ipm(nlp, p, bounds, x0=y0, options=options, progress=run)
+    if s is None:
+        return res
+    x, b = np.asarray(res.x) / s.x, problem.bounds
+    g = np.asarray(problem.nlp.jitted().g(x, problem.p))
+    return unscaled(res, s, constraint_violation(g, x, b.gl, b.gu, b.xl, b.xu))
 
 
 def _for_stage(progress: StageProgress | None, stage: str) -> IterationCallback | None:
@@ -256,18 +277,21 @@ def stage_one_problem(task, scheme, final: Problem, N1: int, contact_stage1=None
     )
 
 
-def _stage_one(task, scheme, solver, final: Problem, N1: int, options, contact_stage1, guess, verbose, progress):
+def _stage_one(
+    task, scheme, solver, final: Problem, N1: int, options, contact_stage1, guess, verbose, progress, scaling
+):
     """Stage 1 of 2S (``stage_one_problem``) with the stage-1 fallbacks. Returns (stats, Z1)."""
     t0 = time.perf_counter()
     first = stage_one_problem(task, scheme, final, N1, contact_stage1, guess)
     setup_first = time.perf_counter() - t0
     name = "stage 1 (pseudo-static)"
-    attempts = [_run_solver(solver, first, first.bounds.x0, options, verbose, _for_stage(progress, name))]
+    attempts = [_run_solver(solver, first, first.bounds.x0, options, verbose, _for_stage(progress, name), scaling)]
     for extra, seed in STAGE1_FALLBACKS:
         if attempts[-1].success:
             break
         report = _for_stage(progress, f"{name}, attempt {len(attempts) + 1}")
-        attempts.append(_run_solver(solver, first, restart_point(first, seed), {**options, **extra}, verbose, report))
+        x0 = restart_point(first, seed)
+        attempts.append(_run_solver(solver, first, x0, {**options, **extra}, verbose, report, scaling))
     stats = _stage_stats(name, first, attempts, setup_first, first.bounds.x0)
     return stats, first.full(attempts[-1].x)
 
@@ -354,6 +378,7 @@ def solve(
     stage1_solver: str | None = None,
     progress: StageProgress | None = None,
     foot_margin: ft.FootMargin | None = None,
+    scaling: str = "none",
 ) -> Solution:
     """Solve one task with one strategy.
 
@@ -374,7 +399,9 @@ def solve(
     or a ValueError says none was found. ``progress`` (e.g. ``jaxhumanoid.progress.IterationLine``)
     is called after every solver iteration with (stage name, iteration, objective, primal
     infeasibility). ``foot_margin`` (``model.foot.FootMargin``, default none) keeps the foot that
-    far inside the edges of (5) in both stages. Every argument is checked before any work starts."""
+    far inside the edges of (5) in both stages. ``scaling`` (``ocp.scaling.SCALINGS``): ``"physical"``
+    has every backend solve the NLPs in units of O(1) (torques in 10 N m, forces in 100 N, the
+    objective in 100), ``"none"`` as posed. Every argument is checked before any work starts."""
     task = get_task(task)
     scheme = parse_scheme(scheme)
     if solver not in SOLVERS:
@@ -385,6 +412,7 @@ def solve(
         raise ValueError(f"guess: {guess!r} not in {GUESSES}")
     if handover not in HANDOVERS:
         raise ValueError(f"handover: {handover!r} not in {HANDOVERS}")
+    check_scaling(scaling)
     if not _is_count(continuation_steps, 1):
         raise ValueError(f"continuation_steps: expected an integer >= 1, got {continuation_steps!r}")
     _check_inputs(
@@ -423,7 +451,9 @@ def solve(
     if scheme.stages == 2:
         stage1 = {**STAGE1_DEFAULTS, **(options or {}), **(stage1_options or {})}
         first = stage1_solver or solver
-        stats1, Z1 = _stage_one(task, scheme, first, final, N1, stage1, contact_stage1, guess, verbose, progress)
+        stats1, Z1 = _stage_one(
+            task, scheme, first, final, N1, stage1, contact_stage1, guess, verbose, progress, scaling
+        )
         stages.append(stats1)
         Zf = interpolate_full(Z1, T, final.layout)
         warm = {"t": np.linspace(0.0, T, N + 1), "q": Zf[:, final.layout.stage_slices()["q"]]}
@@ -433,16 +463,18 @@ def solve(
         first_law = ContactParams.relaxed() if contact_stage1 is None else contact_stage1
         laws = law_path(first_law, final.p.contact, continuation_steps)
         solvers = (stage1_solver or solver, solver)
-        more, x = _continuation_stages(solvers, final, laws, x0, stage2, setup_final, verbose, progress)
+        more, x = _continuation_stages(solvers, final, laws, x0, stage2, setup_final, verbose, progress, scaling)
         stages.extend(more)
         return make_solution(final, x, stages, solver, warm_start=warm)
     name = "stage 2 (dynamic)" if scheme.stages == 2 else "single stage"
-    res = _run_solver(solver, final, x0, stage2, verbose, _for_stage(progress, name))
+    res = _run_solver(solver, final, x0, stage2, verbose, _for_stage(progress, name), scaling)
     stages.append(_stage_stats(name, final, [res], setup_final, x0))
     return make_solution(final, res.x, stages, solver, warm_start=warm)
 
 
-def _run_path(solver, problems: list[Problem], x0, options, verbose, progress, label: str) -> list[NLPResult]:
+def _run_path(
+    solver, problems: list[Problem], x0, options, verbose, progress, label: str, scaling: str
+) -> list[NLPResult]:
     """Solve each problem of a law path in turn, each from the last one's solution (the first from
     x0, the later ones with ``CONTINUATION_OPTIONS``); stop at the first failed solve."""
     attempts: list[NLPResult] = []
@@ -450,14 +482,14 @@ def _run_path(solver, problems: list[Problem], x0, options, verbose, progress, l
     for j, problem in enumerate(problems):
         name = label if j == len(problems) - 1 else f"{label}, law {j + 1}/{len(problems)}"
         opts = options if j == 0 else {**options, **CONTINUATION_OPTIONS}
-        attempts.append(_run_solver(solver, problem, x, opts, verbose, _for_stage(progress, name)))
+        attempts.append(_run_solver(solver, problem, x, opts, verbose, _for_stage(progress, name), scaling))
         x = attempts[-1].x
         if not attempts[-1].success:
             break
     return attempts
 
 
-def _continuation_stages(solvers, final: Problem, laws, x0, options, setup_time_s, verbose, progress):
+def _continuation_stages(solvers, final: Problem, laws, x0, options, setup_time_s, verbose, progress, scaling):
     """The dynamic stages of a continuation hand-over: the first law (stage 1's) by ``solvers[0]``,
     then the path to the nominal law by ``solvers[1]``. Returns (stats of both, x); a failed solve
     ends the path, and its stage reports its status with the law it failed at."""
@@ -468,7 +500,7 @@ def _continuation_stages(solvers, final: Problem, laws, x0, options, setup_time_
         (solvers[0], problems[:1], "stage 1 (dynamic, relaxed law)"),
         (solvers[1], problems[1:], "stage 2 (dynamic)"),
     ):
-        attempts = _run_path(solver, part, x, options, verbose, progress, name)
+        attempts = _run_path(solver, part, x, options, verbose, progress, name, scaling)
         st = _stage_stats(name, part[-1], attempts, setup_time_s if not stats else 0.0, x)
         if len(attempts) < len(part):
             st = dataclasses.replace(st, status=f"{st.status} (law {len(attempts)}/{len(part)})", success=False)

@@ -24,6 +24,7 @@
                guess = "inverse_dynamics"  # or "linear" (default): the initial guess
                handover = "continuation"   # or "direct" (default): stage 1 to stage 2
                stage1_solver = "ipopt"     # the solver of the relaxed-law stages (default: solver)
+               scaling = "physical"        # or "none" (default): the NLPs in units of O(1)
     [options]  tol = 1e-8                # solver options, optional
 
 Angles follow the package's convention (relative joint angles, ``jaxhumanoid.model``). Every
@@ -80,7 +81,7 @@ TABLES = {
         "goal_tolerance",
     },
     "weights": {"w_u", "w_qd", "w_dqd", "w_du"},
-    "solve": {"scheme", "solver", "N", "T", "N1", "guess", "handover", "stage1_solver"},
+    "solve": {"scheme", "solver", "N", "T", "N1", "guess", "handover", "stage1_solver", "scaling"},
     "options": None,
 }
 

@@ -30,8 +30,9 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
+from jaxhumanoid.ocp.scaling import NLPScaling, scaled_bounds
 from jaxhumanoid.solvers.ipopt import DEFAULT_OPTIONS, captured_log
-from jaxhumanoid.solvers.result import IterationCallback, NLPResult, constraint_violation
+from jaxhumanoid.solvers.result import IterationCallback, NLPResult, constraint_violation, unscaled
 from jaxhumanoid.solvers.status import succeeded
 
 
@@ -327,6 +328,7 @@ def solve_casadi(
     options: dict | None = None,
     verbose: bool = False,
     progress: IterationCallback | None = None,
+    scaling: NLPScaling | None = None,
 ) -> NLPResult:
     """Solve ``problem`` (a ``strategy.problem.Problem``) with CasADi's IPOPT.
 
@@ -334,7 +336,9 @@ def solve_casadi(
     MUMPS, same tol and mu_strategy as our IPOPT path). ``compile_time_s`` is the time to build
     the SX graph and the solver (derivative graphs included); ``solve_time_s`` is the wall time of the
     solver call (CasADi's ``t_wall_total`` where its statistics report one). ``progress`` is
-    called with (iteration, objective, primal infeasibility) at every iterate.
+    called with (iteration, objective, primal infeasibility) at every iterate. With ``scaling``
+    (``ocp.scaling``) IPOPT runs the scaled graph f~(y) = sf f(y / Dx), g~ = Dg g(y / Dx), the
+    problem ``ocp.scaling.scaled_nlp`` states, and the result comes back in the original units.
     """
     bounds, nlp = problem.bounds, problem.nlp
     x0 = np.asarray(bounds.x0 if x0 is None else x0, dtype=np.float64)
@@ -346,17 +350,22 @@ def solve_casadi(
     opts.update(options or {})
     t0 = time.perf_counter()
     cnlp = build_casadi_nlp(problem)
+    xs, fs, gs, b = cnlp.x, cnlp.f, cnlp.g, bounds
+    if scaling is not None:
+        xs, fs, gs = _scaled_graph(cnlp, scaling)
+        b = scaled_bounds(bounds, scaling)
+        x0 = x0 * np.asarray(scaling.x)
     with captured_log(opts, prefix="casadi_ipopt_") as log:
         try:
             nlpsol_opts: dict = {"ipopt": opts, "print_time": False, "error_on_fail": False}
             if progress is not None:
-                nlpsol_opts["iteration_callback"] = _Progress(nlp.n, nlp.m, bounds.gl, bounds.gu, progress)
-            solver = ca.nlpsol("solver", "ipopt", {"x": cnlp.x, "f": cnlp.f, "g": cnlp.g}, nlpsol_opts)
+                nlpsol_opts["iteration_callback"] = _Progress(nlp.n, nlp.m, b.gl, b.gu, progress)
+            solver = ca.nlpsol("solver", "ipopt", {"x": xs, "f": fs, "g": gs}, nlpsol_opts)
         except RuntimeError as err:
             raise ValueError(f"options: CasADi/IPOPT rejected the options {sorted(opts)} ({err})") from err
         build_time = time.perf_counter() - t0
         t1 = time.perf_counter()
-        sol = solver(x0=x0, lbx=bounds.xl, ubx=bounds.xu, lbg=bounds.gl, ubg=bounds.gu)
+        sol = solver(x0=x0, lbx=b.xl, ubx=b.xu, lbg=b.gl, ubg=b.gu)
         solve_time = time.perf_counter() - t1
         stats = solver.stats()
     if verbose:
@@ -368,7 +377,7 @@ def solve_casadi(
     iters = stats.get("iterations", {})
     history: dict = {ours: np.asarray(iters.get(theirs, [])) for ours, theirs in _HISTORY_KEYS.items()}
     history["eval_time_s"] = float(sum(stats.get(f"t_wall_{k}", 0.0) for k in _EVAL_STATS))
-    return NLPResult(
+    res = NLPResult(
         x=x,
         lam_g=np.asarray(sol["lam_g"]).ravel(),
         z_l=np.maximum(-lam_x, 0.0),
@@ -379,7 +388,18 @@ def solve_casadi(
         solve_time_s=float(stats.get("t_wall_total", solve_time)),
         compile_time_s=build_time,
         objective=float(sol["f"]),
-        max_constraint_violation=constraint_violation(g_val, x, bounds.gl, bounds.gu, bounds.xl, bounds.xu),
+        max_constraint_violation=constraint_violation(g_val, x, b.gl, b.gu, b.xl, b.xu),
         history=history,
         log=log["text"],
     )
+    if scaling is None:
+        return res
+    x, g_val = x / np.asarray(scaling.x), g_val / np.asarray(scaling.g)
+    return unscaled(res, scaling, constraint_violation(g_val, x, bounds.gl, bounds.gu, bounds.xl, bounds.xu))
+
+
+def _scaled_graph(cnlp: CasadiNLP, s: NLPScaling):
+    """(y, f~, g~) of the scaled problem (``ocp.scaling``) from the graph of ``cnlp``."""
+    y = ca.SX.sym("y", cnlp.x.shape[0])
+    f, g = ca.substitute([cnlp.f, cnlp.g], [cnlp.x], [y / ca.DM(np.asarray(s.x))])
+    return y, float(s.obj) * f, ca.DM(np.asarray(s.g)) * g
