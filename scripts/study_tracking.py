@@ -2,7 +2,7 @@
 
     python scripts/study_tracking.py [--tasks T1 T2 T3 T4 | examples/human/T1.toml ...] [--trials 100]
         [--seed 0] [--plans DIR] [--out docs/tracking.json] [--lqr Q_RAD QD_RAD_S U_NM [FOOT_N]]
-        [--foot-margin LOAD FRICTION COP] [--N 100] [--defects]
+        [--foot-margin LOAD FRICTION COP] [--N 100] [--qp-filter [LOAD FRICTION COP]] [--defects]
 
 The tables are copied into docs/tracking.md, which explains them.
 
@@ -10,7 +10,9 @@ Each task (a built-in key or a task file) is solved with the defaults (A,F+C,2S,
 a task file's own settings), on ``--N`` intervals and with ``--foot-margin`` when given, into
 ``--plans``/<label> (reused when a solution is already there; the label is the key, or the task
 file's folder and stem, with the margin and the grid appended when given), then ``jaxhumanoid.tracking.track`` runs ``--trials`` perturbed
-executions at the default perturbation, open loop and closed loop, as one batch each. Writes the
+executions at the default perturbation, open loop and closed loop (and, with ``--qp-filter``,
+TVLQR through the steady-foot QP filter of ``jaxhumanoid.tracking.filter``, with its defaults or
+the given margin), as one batch each. Writes the
 JSON (rates, failure reasons, timings) and a markdown table next to it (``tracking_table.md``); rows of tasks
 not run this time are kept from an existing ``--out``. ``--defects`` instead measures how far each
 plan is from the simulator interval by interval (``tracking.plan.interval_defects``) and adds it to
@@ -31,6 +33,7 @@ import jaxhumanoid as jh
 from jaxhumanoid.model.foot import FootMargin
 from jaxhumanoid.progress import Progress
 from jaxhumanoid.tracking import LQRWeights, track
+from jaxhumanoid.tracking.filter import SafetyFilter
 from jaxhumanoid.tracking.plan import interval_defects
 
 
@@ -57,11 +60,26 @@ def plan(task: str, plans: pathlib.Path, margin=None, N=None) -> pathlib.Path:
     return out
 
 
-def summary(res, wall_s: float, name: str, objective: float) -> dict:
-    reasons = {
-        key: dict(collections.Counter(r[key]["reason"] or "success" for r in res.records))
-        for key in ("open_loop", "closed_loop")
+def qp_summary(res) -> dict:
+    """The filter's rate, failures and, over the failed trials, where its slack was active."""
+    rows = [r["qp_filter"] for r in res.records]
+    failed = [q for q in rows if not q["success"]]
+    t_fail = sorted(q["t_fail"] for q in failed if q["t_fail"] is not None)
+    return {
+        "qp_filter_success_rate": res.qp_filter_success_rate,
+        "safety_filter": res.safety_filter,
+        "qp_filter_median_t_fail_s": t_fail[len(t_fail) // 2] if t_fail else None,
+        "qp_filter_goal_reached_rate": sum(q["goal_reached"] for q in rows) / res.trials,
+        "qp_filter_failed_after_active_slack": sum(bool(q["filter"]["slack_before_failure"]) for q in failed),
+        "qp_filter_failed_at_noise_change": sum(bool(q["filter"]["at_noise_change"]) for q in failed),
+        "qp_filter_trials_with_active_slack": sum(q["filter"]["slack_steps"] > 0 for q in rows),
+        "qp_filter_max_qp_residual": max(q["filter"]["max_qp_residual"] for q in rows),
     }
+
+
+def summary(res, wall_s: float, name: str, objective: float) -> dict:
+    keys = ("open_loop", "closed_loop") + (("qp_filter",) if res.qp_filter_success_rate is not None else ())
+    reasons = {key: dict(collections.Counter(r[key]["reason"] or "success" for r in res.records)) for key in keys}
     first_fail = sorted(r["closed_loop"]["t_fail"] for r in res.records if r["closed_loop"]["t_fail"] is not None)
     return {
         "task": name,
@@ -75,9 +93,33 @@ def summary(res, wall_s: float, name: str, objective: float) -> dict:
         "closed_loop_goal_reached_rate": sum(r["closed_loop"]["goal_reached"] for r in res.records) / res.trials,
         "closed_loop_median_t_fail_s": first_fail[len(first_fail) // 2] if first_fail else None,
         "wall_s": wall_s,
-        "trials_per_s": 2 * res.trials / wall_s,
+        "trials_per_s": len(keys) * res.trials / wall_s,
         "timing_s": res.timing_s,
+        **(qp_summary(res) if "qp_filter" in keys else {}),
     }
+
+
+def qp_markdown(rows) -> str:
+    """The rows that ran the QP filter: the three policies side by side."""
+    lines = [
+        "| task | trials | open loop | TVLQR | TVLQR + QP filter | QP filter: first failures "
+        "| median time of first failure (s) | failed right after an infeasible QP | failed at a new noise draw "
+        "| wall (s) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        if r.get("qp_filter_success_rate") is None:
+            continue
+        fails = ", ".join(f"{k} {v}" for k, v in sorted(r["reasons"]["qp_filter"].items()) if k != "success")
+        t_fail = "-" if r["qp_filter_median_t_fail_s"] is None else f"{r['qp_filter_median_t_fail_s']:.2f}"
+        n_failed = r["trials"] - round(r["qp_filter_success_rate"] * r["trials"])
+        lines.append(
+            f"| {r['task']} | {r['trials']} | {r['open_loop_success_rate']:.0%} | {r['closed_loop_success_rate']:.0%} "
+            f"| {r['qp_filter_success_rate']:.0%} | {fails or '-'} | {t_fail} "
+            f"| {r['qp_filter_failed_after_active_slack']} of {n_failed} "
+            f"| {r.get('qp_filter_failed_at_noise_change', '-')} of {n_failed} | {r['wall_s']:.0f} |"
+        )
+    return "\n".join(lines) + "\n"
 
 
 def markdown(rows) -> str:
@@ -158,6 +200,14 @@ def main() -> None:
     )
     parser.add_argument("--N", type=int, default=None, help="plan intervals (default the task's, 100)")
     parser.add_argument(
+        "--qp-filter",
+        nargs="*",
+        type=float,
+        default=None,
+        metavar="M",
+        help="also run TVLQR through the steady-foot QP filter (optionally its margin LOAD FRICTION COP)",
+    )
+    parser.add_argument(
         "--defects", action="store_true", help="instead: the plans' interval defects against the simulator only"
     )
     args = parser.parse_args()
@@ -169,16 +219,28 @@ def main() -> None:
     if args.lqr is not None and len(args.lqr) not in (3, 4):
         parser.error(f"--lqr: expected Q_RAD QD_RAD_S U_NM [FOOT_N], got {args.lqr}")
     weights = LQRWeights(**dict(zip(("q_rad", "qd_rad_s", "u_Nm", "foot_N"), args.lqr or ())))
+    if args.qp_filter is not None and len(args.qp_filter) not in (0, 3):
+        parser.error(f"--qp-filter: expected nothing or LOAD FRICTION COP, got {args.qp_filter}")
+    safety = None if args.qp_filter is None else SafetyFilter(*args.qp_filter)
     for task in args.tasks:
         src = plan(task, pathlib.Path(args.plans), args.foot_margin, args.N)
         name = label(task, args.foot_margin, args.N)
         t0 = time.perf_counter()
-        res = track(src, trials=args.trials, seed=args.seed, weights=weights, progress=Progress(4))
+        res = track(
+            src,
+            trials=args.trials,
+            seed=args.seed,
+            weights=weights,
+            progress=Progress(4 + (safety is not None)),
+            safety=safety,
+        )
         row = summary(res, time.perf_counter() - t0, name, jh.Solution.load(src).objective)
         rows = sorted([r for r in rows if r["task"] != name] + [row], key=lambda r: r["task"])
-        print(markdown([row]), flush=True)
+        print(markdown([row]) + (qp_markdown([row]) if safety is not None else ""), flush=True)
         out.write_text(json.dumps(rows, indent=2) + "\n")
         out.with_name(out.stem + "_table.md").write_text(markdown(rows))
+        if any(r.get("qp_filter_success_rate") is not None for r in rows):
+            out.with_name(out.stem + "_qp_table.md").write_text(qp_markdown(rows))
 
 
 if __name__ == "__main__":

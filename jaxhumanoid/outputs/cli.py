@@ -29,6 +29,7 @@ from jaxhumanoid.strategy.solve import HANDOVERS, solve
 from jaxhumanoid.strategy.taskfile import load_task_file, task_files
 from jaxhumanoid.studies import ENGINES, sweep
 from jaxhumanoid.tracking import montecarlo
+from jaxhumanoid.tracking.filter import SafetyFilter
 from jaxhumanoid.validation import checks
 
 # Table II of the paper: (iterations, seconds) per task and scheme; None = failed.
@@ -251,8 +252,11 @@ def cmd_animate(args) -> int:
 def cmd_track(args) -> int:
     sol = montecarlo.as_solution(args.dir)
     out = writable_dir(args.out or args.dir)
-    progress = Progress(4 + (0 if args.no_figures else 1), quiet=args.quiet)
-    res = montecarlo.track(sol, trials=args.trials, seed=args.seed, substeps=args.substeps, progress=progress)
+    safety = SafetyFilter() if args.controller == "qp" else None
+    progress = Progress(4 + (safety is not None) + (0 if args.no_figures else 1), quiet=args.quiet)
+    res = montecarlo.track(
+        sol, trials=args.trials, seed=args.seed, substeps=args.substeps, progress=progress, safety=safety
+    )
     path = res.save(out)
     if not args.no_figures:
         progress.start("figure and animation")
@@ -262,7 +266,9 @@ def cmd_track(args) -> int:
     if not args.quiet:
         print(
             f"{res.task}: {res.trials} trials, success open loop {res.open_loop_success_rate:.0%}, "
-            f"closed loop (TVLQR) {res.closed_loop_success_rate:.0%} -> {path}"
+            f"closed loop (TVLQR) {res.closed_loop_success_rate:.0%}"
+            + ("" if res.qp_filter_success_rate is None else f", TVLQR + QP filter {res.qp_filter_success_rate:.0%}")
+            + f" -> {path}"
         )
     return 0
 
@@ -406,6 +412,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--trials", type=int, default=100, help="perturbed trials (default 100; trial 0 is unperturbed)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--substeps", type=int, default=10, help="simulator steps per plan interval (default 10)")
+    p.add_argument(
+        "--controller",
+        choices=("tvlqr", "qp"),
+        default="tvlqr",
+        help="tvlqr: open loop and TVLQR (default); qp: also TVLQR through the steady-foot QP filter",
+    )
     p.add_argument("--out", default=None, help="where tracking.json, .png and .gif go (default DIR)")
     p.add_argument("--no-figures", action="store_true", help="write tracking.json only")
     p.add_argument("--quiet", action="store_true")

@@ -1,4 +1,5 @@
-"""Monte-Carlo execution of a plan: perturbed bodies, laws and starts, open loop against TVLQR.
+"""Monte-Carlo execution of a plan: perturbed bodies, laws and starts, open loop against TVLQR
+(and, with ``track(safety=...)``, TVLQR through the steady-foot QP filter of ``tracking.filter``).
 
 Each trial draws (uniformly, from one seeded generator) link masses and lengths scaled by
 1 +- ``mass_length`` (lengths scale a and c together; inertia scales with mass x length^2),
@@ -10,7 +11,7 @@ then the nearest such posture is searched; a draw whose body and law can hold no
 ``MAX_SEAT_MOVE`` is drawn again and counted in ``rejected_draws``), and Gaussian torque noise of
 ``torque_noise_Nm`` per joint, held over each plan interval. Each trial starts at rest with the
 torques that hold it there, and that start is blended into the plan over ``start_blend_s``
-(``simulator.rollout``). Both policies run on the same draws, all trials as one ``vmap`` batch;
+(``simulator.rollout``). The policies run on the same draws, all trials as one ``vmap`` batch;
 the gains are computed once, for the nominal body (the controller does not know the perturbation).
 
 A trial succeeds when, at the end of the plan plus the hold, every joint angle lies within the goal
@@ -39,6 +40,7 @@ import numpy as np
 from jaxhumanoid.model.params import ContactParams
 from jaxhumanoid.strategy.posture import MarginSpec, find_equilibrium, margins, seat_with_forces
 from jaxhumanoid.strategy.solution import Solution
+from jaxhumanoid.tracking.filter import SafetyFilter, shield
 from jaxhumanoid.tracking.lqr import DEFAULT_WEIGHTS, LQRWeights, check_number_fields, tvlqr_gains
 from jaxhumanoid.tracking.plan import Goal, check_substeps, plant_and_goal, reference
 from jaxhumanoid.tracking.simulator import Plant, Reference, Rollout, rollout
@@ -172,11 +174,15 @@ def _stack(plants: list[Plant]) -> Plant:
     return jax.tree.map(lambda *xs: jnp.stack([jnp.asarray(x, dtype=jnp.float64) for x in xs]), *plants)
 
 
-@functools.partial(jax.jit, static_argnums=1)
-def batch_rollout(plants: Plant, active: tuple, ref: Reference, x0, gains, noise, u_max, u_hold, blend) -> Rollout:
+@functools.partial(jax.jit, static_argnums=1, static_argnames="safety")
+def batch_rollout(
+    plants: Plant, active: tuple, ref: Reference, x0, gains, noise, u_max, u_hold, blend, nominal=None, safety=None
+) -> Rollout:
     """``rollout`` over a batch of plants (stacked leaves), starts (K, 2n), noise (K, M, n) and
-    holding torques (K, n), with one start blend (M,)."""
-    run = lambda pl, x, w, uh: rollout(pl, active, ref, x, gains, w, u_max, uh, blend)  # noqa: E731
+    holding torques (K, n), with one start blend (M,); with ``safety`` (a ``SafetyFilter``) the
+    torques pass through the steady-foot filter on the ``nominal`` plant (the controller's model)."""
+    guard = None if safety is None else shield(nominal, active, ref.dt, u_max, safety)
+    run = lambda pl, x, w, uh: rollout(pl, active, ref, x, gains, w, u_max, uh, blend, guard)  # noqa: E731
     return jax.vmap(run)(plants, x0, noise, u_hold)
 
 
@@ -231,10 +237,44 @@ def judge(r: Rollout, t, plant: Plant, goal: Goal, criteria: Criteria) -> dict[s
     return {**out, "reason": None if reached else "goal missed", "t_fail": None}
 
 
+SLACK_ACTIVE = 1e-4  # body weights: a filter slack above this means its foot rows could not be met
+SLACK_LOOKBACK_S = 0.05  # s: a failure counts as after an infeasible filter step if one lies this close before it
+
+
+def filter_report(r: Rollout, t, verdict: dict, noise_every: int) -> dict[str, Any]:
+    """What the safety filter did in one trial up to its first failure (after it the body is
+    falling and the numbers say nothing): steps where its slack was active (the linearised foot
+    rows could not be met within the strengths), the first such time, the largest slack (body
+    weights), KKT residual and torque change (N m), whether a slack was active within
+    SLACK_LOOKBACK_S before the first failure (``verdict`` from ``judge``), and whether that failure
+    came at the first step of a new torque-noise draw (held over ``noise_every`` steps): a change
+    no controller sees before it acts."""
+    t_step = np.asarray(t)[1 : np.asarray(r.filter_slack).size + 1]
+    upto = t_step <= (np.inf if verdict["t_fail"] is None else verdict["t_fail"])
+    slack, resid, change = (np.asarray(a)[upto] for a in (r.filter_slack, r.filter_residual, r.filter_change))
+    active = slack > SLACK_ACTIVE
+    t_step = t_step[upto]
+    out = {
+        "slack_steps": int(np.sum(active)),
+        "t_first_slack": float(t_step[np.argmax(active)]) if np.any(active) else None,
+        "max_slack_bw": float(np.max(slack)),
+        "max_qp_residual": float(np.max(resid)),
+        "max_change_Nm": float(np.max(change)),
+        "slack_before_failure": None,
+        "at_noise_change": None,
+    }
+    if verdict["t_fail"] is not None:
+        out["slack_before_failure"] = bool(np.any(active & (t_step >= verdict["t_fail"] - SLACK_LOOKBACK_S)))
+        j = int(np.argmin(np.abs(np.asarray(t)[1:] - verdict["t_fail"])))  # the failing step
+        out["at_noise_change"] = j % noise_every == 0
+    return out
+
+
 @dataclasses.dataclass
 class TrackingResult:
     """tracking.json's record, plus the batch arrays the figures need (not written to JSON):
-    open_loop / closed_loop rollouts with leading trial axis, the reference and the gains."""
+    open_loop / closed_loop (/ qp_filter) rollouts with leading trial axis, the reference and the
+    gains. ``qp_filter_success_rate`` and ``safety_filter`` are None when the filter did not run."""
 
     task: str
     trials: int
@@ -255,6 +295,9 @@ class TrackingResult:
     closed_loop: Rollout = dataclasses.field(repr=False)
     goal: Goal = dataclasses.field(repr=False)
     plant: Plant = dataclasses.field(repr=False)
+    qp_filter_success_rate: float | None = None
+    safety_filter: dict | None = None
+    qp_filter: Rollout | None = dataclasses.field(default=None, repr=False)
 
     def trial_plant(self, trial: int) -> Plant:
         """The perturbed plant of one trial."""
@@ -301,6 +344,7 @@ def track(
     weights: LQRWeights = DEFAULT_WEIGHTS,
     progress=None,
     start_blend_s: float = 1.0,
+    safety: SafetyFilter | None = None,
 ) -> TrackingResult:
     """Run ``trials`` perturbed executions of a plan open loop and under TVLQR (module docstring).
 
@@ -309,7 +353,9 @@ def track(
     after the horizon; ``progress``: an ``jaxhumanoid.progress.Progress``-like object with
     ``start(label)`` / ``finish(message)`` (or None); ``start_blend_s``: seconds over which the
     trial's start (its posture and holding torques) is blended into the plan (``start_blend``; 0:
-    the policy aims at the plan's start from the first step). Every argument is checked before any work.
+    the policy aims at the plan's start from the first step); ``safety``: also run TVLQR through
+    this steady-foot filter (``tracking.filter``; None: not run), on the same draws. Every argument
+    is checked before any work.
     """
     trials, seed = _check_int("trials", trials, 1), _check_int("seed", seed, 0)
     substeps = check_substeps(substeps)
@@ -318,6 +364,8 @@ def track(
             raise ValueError(f"{name}: expected a {cls.__name__}, got {type(value).__name__}")
     if not isinstance(weights, LQRWeights):
         raise ValueError(f"weights: expected an LQRWeights, got {type(weights).__name__}")
+    if safety is not None and not isinstance(safety, SafetyFilter):
+        raise ValueError(f"safety: expected a SafetyFilter or None, got {type(safety).__name__}")
     b = start_blend_s
     if isinstance(b, bool) or not isinstance(b, (int, float)) or not np.isfinite(b) or b < 0:
         raise ValueError(f"start_blend_s: expected a finite time >= 0 (s), got {b!r}")
@@ -349,22 +397,27 @@ def track(
     u_max = jnp.asarray(plant.model.u_max)
     u_hold = jnp.asarray([d.start_u for d in draws])
     blend = jnp.asarray(start_blend(np.asarray(ref.t[:-1]) - float(ref.t[0]), start_blend_s))
-    run = lambda K: batch_rollout(plants, active, ref, x0, K, noise, u_max, u_hold, blend)  # noqa: E731
+    run = lambda K, **kw: batch_rollout(plants, active, ref, x0, K, noise, u_max, u_hold, blend, **kw)  # noqa: E731
     open_r = stage("open loop", lambda: run(jnp.zeros_like(gains)))
     closed_r = stage("closed loop", lambda: run(gains))
+    qp_r = None
+    if safety is not None:
+        qp_r = stage("closed loop with the QP filter", lambda: run(gains, nominal=plant, safety=safety))
     t = np.asarray(ref.t)
     records: list[dict[str, Any]] = []
     for i, d in enumerate(draws):
         pick = lambda r: Rollout(*(np.asarray(a[i]) for a in r))  # type: ignore[arg-type]  # noqa: E731  # numpy views of one trial
         trial_plant = perturbed_plant(plant, d)
-        records.append(
-            {
-                "trial": i,
-                "perturbation": dataclasses.asdict(d),
-                "open_loop": judge(pick(open_r), t, trial_plant, goal, criteria),
-                "closed_loop": judge(pick(closed_r), t, trial_plant, goal, criteria),
-            }
-        )
+        record = {
+            "trial": i,
+            "perturbation": dataclasses.asdict(d),
+            "open_loop": judge(pick(open_r), t, trial_plant, goal, criteria),
+            "closed_loop": judge(pick(closed_r), t, trial_plant, goal, criteria),
+        }
+        if qp_r is not None:
+            verdict = judge(pick(qp_r), t, trial_plant, goal, criteria)
+            record["qp_filter"] = {**verdict, "filter": filter_report(pick(qp_r), t, verdict, substeps)}
+        records.append(record)
     rate = lambda key: float(np.mean([r[key]["success"] for r in records]))  # noqa: E731
     return TrackingResult(
         task=sol.task,
@@ -386,4 +439,7 @@ def track(
         closed_loop=closed_r,
         goal=goal,
         plant=plant,
+        qp_filter_success_rate=None if qp_r is None else rate("qp_filter"),
+        safety_filter=None if safety is None else dataclasses.asdict(safety),
+        qp_filter=qp_r,
     )

@@ -122,12 +122,17 @@ def step(plant: Plant, active: tuple, dt, x, u):
     return jnp.concatenate([q1, qd1]), step_info(plant, active, dt, x, u, q1, qd1, resid, it)
 
 
-def step_info(plant: Plant, active: tuple, dt, x, u, q1, qd1, resid, it) -> StepInfo:
-    """The (5) products at the step's midpoint and the joint heights at its end."""
+def step_reaction(plant: Plant, active: tuple, dt, x, q1, qd1):
+    """The ground reaction on the foot (f_t0, f_n0) (2,) at the midpoint of the step x -> (q1, qd1)."""
     q0, qd0 = _split(x)
     qbar, qdbar = 0.5 * (q0 + q1), 0.5 * (qd0 + qd1)
     f = ct.contact_forces(plant.model, plant.foot, plant.contact, qbar, qdbar, active)
-    f_c0 = ft.foot_reaction(plant.model, qbar, qdbar, (qd1 - qd0) / dt, f)
+    return ft.foot_reaction(plant.model, qbar, qdbar, (qd1 - qd0) / dt, f)
+
+
+def step_info(plant: Plant, active: tuple, dt, x, u, q1, qd1, resid, it) -> StepInfo:
+    """The (5) products at the step's midpoint and the joint heights at its end."""
+    f_c0 = step_reaction(plant, active, dt, x, q1, qd1)
     margins = ft.foot_constraints(plant.foot, plant.contact.mu, f_c0, u[0])
     return StepInfo(margins, kin.contact_gaps(plant.model, plant.foot, q1), resid, it)
 
@@ -147,16 +152,32 @@ class Reference(NamedTuple):
 
 class Rollout(NamedTuple):
     """A simulated run of M steps: states x (M+1, 2n), applied torques u (M, n), the (5) products
-    per step (M, 5), the joint heights at the step ends (M, n), the Newton residual (M,)."""
+    per step (M, 5), the joint heights at the step ends (M, n), the Newton residual (M,), and per
+    step what a safety filter reported (``tracking.filter.FilterInfo``; zeros without one): its
+    largest slack (body weights), its QP's KKT residual, its largest torque change (N m), (M,) each."""
 
     x: jax.Array
     u: jax.Array
     foot_margins: jax.Array
     gaps: jax.Array
     residual: jax.Array
+    filter_slack: jax.Array
+    filter_residual: jax.Array
+    filter_change: jax.Array
 
 
-def rollout(plant: Plant, active: tuple, ref: Reference, x0, gains, noise, u_max, u_hold=None, blend=None) -> Rollout:
+def rollout(
+    plant: Plant,
+    active: tuple,
+    ref: Reference,
+    x0,
+    gains,
+    noise,
+    u_max,
+    u_hold=None,
+    blend=None,
+    shield=None,
+) -> Rollout:
     """Run the policy u_j = clip(u_ref_j + K_j (x_j - x_ref_j) + noise_j, -u_max, u_max) from x0.
 
     x0: (2n,); gains: (M, n, 2n) (zeros for the open-loop replay of the planned torques);
@@ -167,20 +188,33 @@ def rollout(plant: Plant, active: tuple, ref: Reference, x0, gains, noise, u_max
     joins the plan as the blend falls. A step whose Newton solve ends in non-finite numbers keeps
     the state it started from (its residual says so), so one diverged trial neither poisons a batch
     nor hides behind NaNs.
+
+    With ``shield``, a function (x, u, memo) -> (u', (slack, residual, change), prediction) such
+    as the steady-foot filter of ``tracking.filter``, the controller's torque (before the noise,
+    which the controller does not know) is replaced by u' and the noise added to that; the three
+    scalars are recorded. memo = (its previous prediction (5,), the (5) products the body's step
+    produced then (5,), as a foot force sensor measures them), NaN before the first step.
     """
     dt = ref.dt
     if blend is None:
         blend, u_hold = jnp.zeros(ref.u.shape[0]), ref.u[0]
     dx0, du0 = x0 - ref.x[0], u_hold - ref.u[0]
+    zero = jnp.zeros(())
 
-    def body(x, inputs):
+    def body(carry, inputs):
+        x, memo = carry
         x_ref, u_ref, K, w, b = inputs
-        u = jnp.clip(u_ref + b * du0 + K @ (x - x_ref - b * dx0) + w, -u_max, u_max)
+        u = u_ref + b * du0 + K @ (x - x_ref - b * dx0)
+        report, prediction = (zero, zero, zero), memo[0]
+        if shield is not None:
+            u, report, prediction = shield(x, u, memo)
+        u = jnp.clip(u + w, -u_max, u_max)
         x1, info = step(plant, active, dt, x, u)
         ok = jnp.all(jnp.isfinite(x1))
         x1 = jnp.where(ok, x1, x)
         resid = jnp.where(ok, info.residual, jnp.inf)
-        return x1, (x1, u, info.foot_margins, info.gaps, resid)
+        return (x1, (prediction, info.foot_margins)), (x1, u, info.foot_margins, info.gaps, resid, *report)
 
-    _, (xs, us, margins, gaps, resid) = jax.lax.scan(body, x0, (ref.x[:-1], ref.u, gains, noise, blend))
-    return Rollout(jnp.concatenate([x0[None], xs]), us, margins, gaps, resid)
+    unknown = jnp.full(5, jnp.nan)
+    _, (xs, *out) = jax.lax.scan(body, (x0, (unknown, unknown)), (ref.x[:-1], ref.u, gains, noise, blend))
+    return Rollout(jnp.concatenate([x0[None], xs]), *out)
