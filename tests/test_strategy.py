@@ -40,7 +40,7 @@ def test_two_stage_converges_on_every_task(key):
 def test_failed_stage_one_retries_with_the_fallback_and_counts_every_run(monkeypatch, solver):
     calls = []
 
-    def fake_run(solver, problem, x0, options, verbose, progress=None):
+    def fake_run(solver, problem, x0, options, verbose, progress=None, scaling="none"):
         calls.append((problem.layout.N, dict(options), np.array(x0)))
         fail = problem.layout.pseudo_static and len(calls) == 1
         return _fake_result(problem, x0, "Infeasible_Problem_Detected" if fail else "Solve_Succeeded", 100 + len(calls))
@@ -105,7 +105,7 @@ def test_with_law_reseats_the_start_so_that_it_stays_the_same_equilibrium():
 def test_continuation_hands_over_along_the_law_path_and_stops_at_a_failure(monkeypatch, solver):
     calls = []
 
-    def fake_run(used, problem, x0, options, verbose, progress=None):
+    def fake_run(used, problem, x0, options, verbose, progress=None, scaling="none"):
         calls.append((used, problem.layout.pseudo_static, float(problem.p.contact.kappa), dict(options)))
         fail = len(calls) == fail_at
         return _fake_result(problem, x0, "Restoration_Failed" if fail else "Solve_Succeeded", 10 + len(calls))
