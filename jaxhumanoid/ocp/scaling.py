@@ -18,6 +18,7 @@ one compilation serves every scaling (S is a runtime input) and the same solver 
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any, NamedTuple
 
 import jax.numpy as jnp
@@ -97,21 +98,9 @@ def scaled_nlp(nlp: NLP) -> NLP:
         p, s = ps
         return nlp.hess_values(y / s.x, s.g * lam, sigma * s.obj, p) / (s.x[hr] * s.x[hc])
 
-    out = NLP(
-        n=nlp.n,
-        m=nlp.m,
-        f=f,
-        g=g,
-        grad=grad,
-        jac_values=jac_values,
-        hess_values=hess_values,
-        jac_rows=nlp.jac_rows,
-        jac_cols=nlp.jac_cols,
-        hess_rows=nlp.hess_rows,
-        hess_cols=nlp.hess_cols,
-        var_stage=nlp.var_stage,
-        con_stage=nlp.con_stage,
-        name=f"{nlp.name}, scaled",
+    # replace() leaves the new NLP its own, empty cache (an init=False field)
+    out = dataclasses.replace(
+        nlp, f=f, g=g, grad=grad, jac_values=jac_values, hess_values=hess_values, name=f"{nlp.name}, scaled"
     )
     nlp.cache["scaled"] = out
     return out

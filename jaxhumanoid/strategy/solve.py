@@ -103,9 +103,7 @@ def _run_solver(
         res = solve_ipm(nlp, p, bounds, x0=y0, options=options, progress=run)
     if s is None:
         return res
-    x, b = np.asarray(res.x) / s.x, problem.bounds
-    g = np.asarray(problem.nlp.jitted().g(x, problem.p))
-    return unscaled(res, s, constraint_violation(g, x, b.gl, b.gu, b.xl, b.xu))
+    return unscaled(res, s, violation_at(problem, np.asarray(res.x) / s.x))
 
 
 def _for_stage(progress: StageProgress | None, stage: str) -> IterationCallback | None:
@@ -131,11 +129,12 @@ def interpolate_full(Z_coarse: np.ndarray, T: float, layout_fine: tr.Layout) -> 
     return Z
 
 
-def start_violation(problem: Problem, x0) -> float:
-    """The largest constraint or bound violation of the start point x0 (n,) of a stage."""
-    _, g = problem.nlp.jitted().fg(np.asarray(x0, dtype=float), problem.p)
+def violation_at(problem: Problem, x) -> float:
+    """The largest constraint or bound violation of ``problem`` at x (n,), in its own units."""
+    x = np.asarray(x, dtype=float)
+    g = problem.nlp.jitted().g(x, problem.p)
     b = problem.bounds
-    return constraint_violation(np.asarray(g), x0, b.gl, b.gu, b.xl, b.xu)
+    return constraint_violation(np.asarray(g), x, b.gl, b.gu, b.xl, b.xu)
 
 
 def _stage_stats(name: str, problem: Problem, attempts: list[NLPResult], setup_time_s: float, x0) -> StageStats:
@@ -156,7 +155,7 @@ def _stage_stats(name: str, problem: Problem, attempts: list[NLPResult], setup_t
         n_variables=int(problem.nlp.n),
         n_constraints=int(problem.nlp.m),
         attempts=len(attempts),
-        start_violation=start_violation(problem, x0),
+        start_violation=violation_at(problem, x0),
         runs=tuple(int(r.iterations) for r in attempts),
     )
 
