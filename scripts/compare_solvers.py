@@ -1,11 +1,11 @@
 """The default tasks solved by every backend, side by side in one run: one answer to one problem?
 
-    python scripts/compare_solvers.py [--tasks T1 T2 T3 T4 | examples/human/T1.toml ...] [--solvers ipopt ipm casadi] [--N 100]
-        [--scheme A,F+C,2S] [--handover direct|continuation] [--stage1-solver ipopt|ipm|casadi|same]
+    python scripts/compare_solvers.py [--tasks T1 T2 T3 T4 | examples/paper/T1.toml ...] [--solvers ipopt ipm casadi] [--N 100]
+        [--scheme A,F+C,2S] [--guess G] [--handover direct|continuation] [--stage1-solver ipopt|ipm|casadi|same]
         [--out results/compare_solvers.json] [--md results/compare_solvers.md]
 
 A task is a key or a task file (solved with the file's scheme, grid and options);
-``--handover`` and ``--stage1-solver`` override the task file's or the default. Per task and solver: the status, iterations, solve time and objective of each stage, the peak
+``--guess``, ``--handover`` and ``--stage1-solver`` override the task file's or the default. Per task and solver: the status, iterations, solve time and objective of each stage, the peak
 loads (``Solution.peaks``) and the four objective terms; per task and pair of solvers: the
 relative objective difference and the largest joint-angle difference (rad) over the trajectory
 (``jaxhumanoid.studies.compare.agreement``: the same optimum when objectives are within ``--obj-tol``
@@ -67,6 +67,7 @@ def main() -> None:
     ap.add_argument("--solvers", nargs="*", default=["ipopt", "ipm", "casadi"])
     ap.add_argument("--scheme", default="A,F+C,2S")
     ap.add_argument("--N", type=int, default=100)
+    ap.add_argument("--guess", choices=["inverse_dynamics", "linear"], default=None)
     ap.add_argument("--handover", choices=["direct", "continuation"], default=None)
     ap.add_argument(
         "--stage1-solver", choices=["ipopt", "ipm", "casadi", "same"], default=None, help="same: each solver"
@@ -76,9 +77,8 @@ def main() -> None:
     ap.add_argument("--out", default="results/compare_solvers.json")
     ap.add_argument("--md", default=None)
     args = ap.parse_args()
-    overrides = {k: v for k, v in (("handover", args.handover), ("stage1_solver", args.stage1_solver)) if v}
-    if overrides.get("stage1_solver") == "same":
-        overrides["stage1_solver"] = None
+    chosen = (("guess", args.guess), ("handover", args.handover), ("stage1_solver", args.stage1_solver))
+    overrides = {k: v for k, v in chosen if v}
     results: dict = {
         "scheme": args.scheme,
         "N": args.N,

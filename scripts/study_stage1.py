@@ -1,6 +1,6 @@
 """Study: how chaotic is stage 1 of 2S? The same stage-1 NLP from nearby starting points.
 
-    python scripts/study_stage1.py [--tasks T1 T3 | examples/human/T1.toml ...] [--starts 6] [--sigma 1e-4]
+    python scripts/study_stage1.py [--tasks T1 T3 | examples/paper/T1.toml ...] [--starts 6] [--sigma 1e-4]
         [--solvers ipopt ipm casadi] [--guesses linear inverse_dynamics] [--mu-strategies monotone adaptive]
         [--out results/study_stage1.json] [--md results/study_stage1.md] [--quiet]
 

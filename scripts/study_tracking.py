@@ -1,6 +1,6 @@
 """Study: do the plans of T1-T4 execute? Open loop against TVLQR over perturbed bodies and starts.
 
-    python scripts/study_tracking.py [--tasks T1 T2 T3 T4 | examples/human/T1.toml ...] [--trials 100]
+    python scripts/study_tracking.py [--tasks T1 T2 T3 T4 | examples/paper/T1.toml ...] [--trials 100]
         [--seed 0] [--plans DIR] [--out docs/tracking.json] [--lqr Q_RAD QD_RAD_S U_NM [FOOT_N]]
         [--foot-margin LOAD FRICTION COP] [--N 100] [--qp-filter [LOAD FRICTION COP]] [--defects]
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import jaxhumanoid as jh
-from jaxhumanoid.model.params import DEG, HUMANOID_RANGES, HUMANOID_STRENGTH
+from jaxhumanoid.model.params import DEG, HUMANOID_RANGES, HUMANOID_STRENGTH, TORQUE_LIMIT
 from jaxhumanoid.ocp.tasks import effort_weights
 from jaxhumanoid.outputs.cli import build_parser, main, solve_arguments
 from jaxhumanoid.strategy.posture import margins
@@ -109,25 +109,14 @@ def test_example_task_files_solve_from_the_command_line(name, tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", ["humanoid_T3_soft", "T1", "T2", "T3", "T4"])
+@pytest.mark.parametrize("name", ["humanoid_T3_soft", "paper/T1", "paper/T2", "paper/T3", "paper/T4"])
 def test_full_size_task_files_solve(name, tmp_path):
-    assert solve_task_file(name, tmp_path / name) == 0
+    assert solve_task_file(name, tmp_path / name.replace("/", "_")) == 0
 
 
 @pytest.mark.parametrize("key", ["T1", "T2", "T3", "T4"])
-def test_the_example_task_files_pose_the_packaged_tasks(key):
-    tf = jh.load_task_file(EXAMPLES / f"{key}.toml")
-    task = jh.get_task(key)
-    np.testing.assert_allclose(tf.task.start, task.start, atol=1e-12)
-    np.testing.assert_allclose(tf.task.goal, task.goal, atol=1e-12)
-    assert tf.task.active == task.active
-    np.testing.assert_allclose(tf.task.weights.as_array(5), task.weights.as_array(5), rtol=1e-15)
-
-
-@pytest.mark.parametrize("key", ["T1", "T2", "T3", "T4"])
-def test_the_human_task_files_pose_equilibria_within_adult_ranges_and_strength(key):
-    tf = jh.load_task_file(EXAMPLES / "human" / f"{key}.toml")
-    body, task = tf.model, tf.task
+def test_the_built_in_tasks_pose_equilibria_within_adult_ranges_and_strength(key):
+    body, task = jh.PlanarChain.humanoid(), jh.get_task(key)
     np.testing.assert_array_equal(body.u_max, HUMANOID_STRENGTH)
     np.testing.assert_allclose(body.q_min, HUMANOID_RANGES[0] * DEG, atol=1e-15)
     assert task.weights.w_u == effort_weights(body.u_max)
@@ -136,24 +125,42 @@ def test_the_human_task_files_pose_equilibria_within_adult_ranges_and_strength(k
         assert margins(body, q, task.active).ok
 
 
+@pytest.mark.parametrize("key", ["T1", "T2", "T3", "T4"])
+def test_the_paper_task_files_pose_the_tasks_on_the_wide_body(key):
+    # the paper's posing: the same standing and prone postures, its own supine one (outside the
+    # adult shoulder range), a 1000 N m torque box and one set of weights for every task
+    tf, task = jh.load_task_file(EXAMPLES / "paper" / f"{key}.toml"), jh.get_task(key)
+    assert tf.task.active == task.active and np.all(tf.model.u_max == TORQUE_LIMIT)
+    assert tf.task.weights == jh.Weights() and tf.settings["handover"] == "direct"
+    lying = {"T1": "start", "T2": "goal", "T3": "start", "T4": "goal"}[key]
+    standing = "goal" if lying == "start" else "start"
+    np.testing.assert_array_equal(getattr(tf.task, standing), getattr(task, standing))
+    same_lying = np.array_equal(getattr(tf.task, lying), getattr(task, lying))
+    assert same_lying == (key in ("T1", "T2"))
+    for q in (tf.task.start, tf.task.goal):
+        assert np.all(q >= tf.model.q_min) and np.all(q <= tf.model.q_max)
+        assert margins(tf.model, q, tf.task.active).ok
+    if key == "T3":
+        assert tf.task.start[3] < jh.PlanarChain.humanoid().q_min[3]
+
+
 def test_handover_settings_come_from_the_task_file_and_the_command_line_overrides_them():
-    path = str(EXAMPLES / "human" / "T1.toml")
-    kw = solve_arguments(build_parser().parse_args(["solve", "--task-file", path]))
-    assert kw["handover"] == "continuation" and kw["stage1_solver"] == "ipopt" and kw["guess"] == "inverse_dynamics"
-    args = ["solve", "--task-file", path, "--handover", "direct", "--stage1-solver", "ipm"]
-    kw = solve_arguments(build_parser().parse_args(args))
-    assert kw["handover"] == "direct" and kw["stage1_solver"] == "ipm"
-    kw = solve_arguments(build_parser().parse_args(["solve", "--task-file", path, "--stage1-solver", "same"]))
-    assert kw["stage1_solver"] is None and kw["handover"] == "continuation"
     kw = solve_arguments(build_parser().parse_args(["solve", "--task", "T2"]))
-    assert kw["handover"] == "direct" and kw["stage1_solver"] is None  # the paper's 2S by default
+    assert kw["handover"] == "continuation" and kw["stage1_solver"] == "ipopt" and kw["guess"] == "inverse_dynamics"
+    path = str(EXAMPLES / "paper" / "T1.toml")
+    kw = solve_arguments(build_parser().parse_args(["solve", "--task-file", path]))
+    assert kw["handover"] == "direct" and kw["stage1_solver"] == "same" and kw["guess"] == "linear"
+    args = ["solve", "--task-file", path, "--handover", "continuation", "--stage1-solver", "ipm"]
+    kw = solve_arguments(build_parser().parse_args(args))
+    assert kw["handover"] == "continuation" and kw["stage1_solver"] == "ipm"
+    with pytest.raises(ValueError, match="stage1_solver"):
+        jh.solve("T1", stage1_solver="mumps")
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("key", ["T1", "T2", "T3", "T4"])
-def test_the_three_backends_reach_one_optimum_on_the_human_task_files(key):
-    kwargs = jh.load_task_file(EXAMPLES / "human" / f"{key}.toml").as_solve_kwargs()
-    sols = {s: jh.solve(**{**kwargs, "solver": s}) for s in ("ipopt", "ipm", "casadi")}
+def test_the_three_backends_reach_one_optimum_on_the_built_in_tasks(key):
+    sols = {s: jh.solve(key, solver=s) for s in ("ipopt", "ipm", "casadi")}
     assert all(sol.success for sol in sols.values()), {s: sol.status for s, sol in sols.items()}
     ref = sols["ipopt"]
     for sol in sols.values():
@@ -161,10 +168,9 @@ def test_the_three_backends_reach_one_optimum_on_the_human_task_files(key):
         assert np.abs(sol.q - ref.q).max() <= 1e-4
 
 
-def test_the_continuation_brings_ipopt_and_the_ipm_to_one_optimum_on_a_human_task():
-    # human T3 on a coarse grid: the relaxed-law stages by IPOPT, then each backend's continuation
-    kwargs = {**jh.load_task_file(EXAMPLES / "human" / "T3.toml").as_solve_kwargs(), "N": 30, "N1": 15}
-    sols = {s: jh.solve(**{**kwargs, "solver": s}) for s in ("ipopt", "ipm")}
+def test_the_continuation_brings_ipopt_and_the_ipm_to_one_optimum_on_t3():
+    # T3 on a coarse grid: the relaxed-law stages by IPOPT, then each backend's continuation
+    sols = {s: jh.solve("T3", solver=s, N=30, N1=15) for s in ("ipopt", "ipm")}
     assert all(sol.success for sol in sols.values()), {s: sol.status for s, sol in sols.items()}
     assert [st.attempts for st in sols["ipm"].stages][1:] == [1, 4]
     assert abs(sols["ipm"].objective - sols["ipopt"].objective) <= 1e-6 * sols["ipopt"].objective

@@ -34,24 +34,27 @@ def test_values_and_derivatives_agree(task, scheme, pseudo):
     assert all(r.tol == 1e-10 for r in rows if "pattern" not in r.quantity)
 
 
-def _stage1_problem(N):
+def _stage1_problem(N, key="T1", guess="linear"):
     relaxed = ContactParams.relaxed()
-    nominal = build_problem("T1", "A,F+C,1S", N=N)
+    nominal = build_problem(key, "A,F+C,1S", N=N)
     q1, _ = reseat_for_contact(nominal.p, nominal.p.q_start, nominal.layout.active, relaxed)
-    return build_problem("T1", "A,F+C,1S", N=N, pseudo_static=True, contact=relaxed, q_start=q1)
+    return build_problem(key, "A,F+C,1S", N=N, pseudo_static=True, contact=relaxed, q_start=q1, guess=guess)
 
 
 def test_casadi_solve_matches_ipopt():
-    # N = 6: both IPOPT builds (cyipopt's and CasADi's differ in IPOPT/MUMPS versions) take the same
-    # 38 iterations. At N = 10 the long (100+ iteration) paths part after rounding-level differences
-    # and end at different points, which compares the two IPOPT builds rather than the NLPs.
-    problem = _stage1_problem(6)
+    # stage 1 of T3 on 10 intervals: both IPOPT builds (cyipopt's and CasADi's differ in IPOPT/MUMPS
+    # versions) reach one point in about 140 iterations. Longer paths (T1; or from the linear guess)
+    # part after rounding-level differences, which compares the two IPOPT builds rather than the NLPs;
+    # coarser grids are infeasible under the body's strengths.
+    problem = _stage1_problem(10, "T3", "inverse_dynamics")
     opts = {"tol": 1e-10}
     ours = solve_ipopt(problem.nlp, problem.p, problem.bounds, x0=problem.bounds.x0, options=opts)
     seen = []
     ref = solve_casadi(problem, x0=problem.bounds.x0, options=opts, progress=lambda *a: seen.append(a))
     assert ref.success and ours.success, (ref.status, ours.status)
-    assert [k for k, _, _ in seen] == list(range(ref.iterations + 1))  # the progress callback, per iterate
+    # the progress callback, once per iterate; IPOPT calls it once more when it enters restoration
+    ks = [k for k, _, _ in seen]
+    assert ks == list(range(len(ks))) and ref.iterations <= ks[-1] <= ref.iterations + 1
     assert abs(seen[-1][1] - ref.objective) <= 1e-9 * abs(ref.objective) and seen[-1][2] < 1e-6
     assert ref.status == "Solve_Succeeded"
     assert ref.iterations > 0 and ref.solve_time_s > 0 and ref.compile_time_s > 0
@@ -59,7 +62,7 @@ def test_casadi_solve_matches_ipopt():
     assert np.max(np.abs(ref.x - ours.x)) <= 1e-6
     assert abs(ref.objective - ours.objective) <= 1e-8 * max(1.0, abs(ours.objective))
     assert np.max(np.abs(ref.lam_g - ours.lam_g)) <= 1e-4 * max(1.0, np.max(np.abs(ours.lam_g)))
-    assert ref.history["objective"].size == ref.iterations + 1
+    assert ref.history["objective"].size == len(ks)
 
 
 def test_equilibrium_torques_match_fixed_entries():

@@ -303,11 +303,14 @@ def test_humanoid_is_table_one_with_named_joints_and_ranges():
     # the names are static: not a leaf, part of the tree structure
     leaves = jax.tree_util.tree_leaves(MODEL)
     assert all(isinstance(leaf, np.ndarray) for leaf in leaves) and len(leaves) == 8
-    assert MODEL.u_max.shape == (5,) and np.all(MODEL.u_max == TORQUE_LIMIT)
-    # adult strengths: weaker in the arms than in the legs; adult ranges inside Table I's
+    # adult strengths, weaker in the arms than in the legs, and adult ranges; a chain that gives no
+    # strengths gets the wide torque box
+    np.testing.assert_array_equal(MODEL.u_max, HUMANOID_STRENGTH)
     assert np.all(HUMANOID_STRENGTH[3:] < HUMANOID_STRENGTH[:3].min())
-    lo, hi = (r * DEG for r in HUMANOID_RANGES)
-    assert np.all(lo >= MODEL.q_min - 1e-12) and np.all(hi <= MODEL.q_max + 1e-12) and np.all(lo < hi)
+    np.testing.assert_allclose(MODEL.q_min, HUMANOID_RANGES[0] * DEG, atol=1e-15)
+    np.testing.assert_allclose(MODEL.q_max, HUMANOID_RANGES[1] * DEG, atol=1e-15)
+    generic = PlanarChain(a=MODEL.a, c=MODEL.c, m=MODEL.m, inertia=MODEL.inertia)
+    assert np.all(generic.u_max == TORQUE_LIMIT)
     with pytest.raises(ValueError, match=r"PlanarChain\.u_max"):
         dataclasses.replace(MODEL, u_max=np.array([300.0, 500.0, 400.0, 160.0, 0.0]))
     heavier = dataclasses.replace(MODEL, m=2 * MODEL.m)

@@ -351,7 +351,7 @@ def test_two_links_lean_to_upright_one_stage(tmp_path):
 def test_three_links_squat_to_stand_two_stages(tmp_path):
     sol = solve(TASKS[3], "A,F+C,2S", N=15, N1=8, T=3.0, model=CHAINS[3])
     _check_solution(sol, 3, 15, tmp_path)
-    assert len(sol.stages) == 2 and sol.warm_start["q"].shape == (16, 3)
+    assert len(sol.stages) == 3 and sol.warm_start["q"].shape == (16, 3)  # stage 1, relaxed law, continuation
 
 
 def test_seven_links_crouch_to_stand_and_its_figures(tmp_path):

@@ -46,7 +46,8 @@ def test_failed_stage_one_retries_with_the_fallback_and_counts_every_run(monkeyp
         return _fake_result(problem, x0, "Infeasible_Problem_Detected" if fail else "Solve_Succeeded", 100 + len(calls))
 
     monkeypatch.setattr(strat, "_run_solver", fake_run)
-    sol = strat.solve("T1", "A,F+C,2S", solver=solver, N=10, N1=5)
+    paper = dict(guess="linear", handover="direct", stage1_solver="same")
+    sol = strat.solve("T1", "A,F+C,2S", solver=solver, N=10, N1=5, **paper)
     assert [c[0] for c in calls] == [5, 5, 10]
     assert calls[0][1]["mu_init"] == strat.STAGE1_DEFAULTS["mu_init"] and "mu_strategy" not in calls[0][1]
     assert calls[1][1]["mu_strategy"] == "adaptive"
@@ -58,7 +59,7 @@ def test_failed_stage_one_retries_with_the_fallback_and_counts_every_run(monkeyp
     calls.clear()
     failing = lambda *a: dataclasses.replace(fake_run(*a), status="Error", success=False)  # noqa: E731
     monkeypatch.setattr(strat, "_run_solver", failing)
-    sol = strat.solve("T1", "A,F+C,2S", solver=solver, N=10, N1=5)
+    sol = strat.solve("T1", "A,F+C,2S", solver=solver, N=10, N1=5, **paper)
     runs = 1 + len(strat.STAGE1_FALLBACKS)
     assert len(calls) == runs + 1 and sol.stages[0].status == "Error" and sol.stages[0].attempts == runs
     assert not sol.success

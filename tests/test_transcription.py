@@ -118,8 +118,8 @@ def test_inverse_dynamics_guess_satisfies_dynamics_and_force_rows(pseudo):
     # the guess's torques and forces zero the rows of (6b) (or (8)) and of the contact law on every
     # interval after the frozen first one; the linear guess (u = f = 0) leaves them at gravity's size
     kw = dict(N=12, pseudo_static=pseudo, contact=ContactParams.relaxed() if pseudo else None)
-    linear = build_problem("T1", "A,F+C,1S", **kw)
-    guessed = build_problem("T1", "A,F+C,1S", guess="inverse_dynamics", **kw)
+    linear = build_problem("T1", "A,F+C,1S", guess="linear", **kw)
+    guessed = build_problem("T1", "A,F+C,1S", **kw)  # the default guess
     L = linear.layout
     n, nf = L.n_links, L.n_f
     dyn_rows = slice(n, 2 * n + nf)  # (6b)/(8), then the force rows of scheme A
@@ -130,7 +130,7 @@ def test_inverse_dynamics_guess_satisfies_dynamics_and_force_rows(pseudo):
     Z = tr.inverse_dynamics_guess(L, linear.full(linear.bounds.x0), linear.p)
     assert np.max(np.abs(rows(tr.free_from_full(L, jnp.asarray(Z))))) < 1e-9  # unclipped by the torque box
     assert np.max(np.abs(rows(linear.bounds.x0))) > 10.0
-    u = guessed.full(guessed.bounds.x0)[:, L.stage_slices()["u"]]
+    u = guessed.full(guessed.bounds.x0)[1:, L.stage_slices()["u"]]  # the free intervals: the first is the start's
     assert np.all(np.abs(u) <= np.asarray(guessed.model.u_max) + 1e-12)  # x0 stays within the box
     with pytest.raises(ValueError, match="guess"):
         build_problem("T1", "A,F+C,1S", N=12, guess="zero")

@@ -124,13 +124,10 @@ class PlanarChain:
 
     @classmethod
     def humanoid(cls) -> PlanarChain:
-        """Table I: adult man of 73 kg and 1.74 m (adapted by the paper from its ref. [14]).
-
-        Joint ranges (rad): q_1 is the absolute angle of the lower leg; the shoulder range spans
-        the hanging arm (-180 deg), the forward-raised arm of the prone posture and the overhead
-        arm of the supine posture (-385 deg, i.e. 205 deg of flexion). Torques are boxed at
-        ``TORQUE_LIMIT``. ``HUMANOID_RANGES`` and ``HUMANOID_STRENGTH`` give adult ranges of motion
-        and strengths instead (``examples/human/``).
+        """Table I: adult man of 73 kg and 1.74 m (adapted by the paper from its ref. [14]), with
+        adult ranges of motion (``HUMANOID_RANGES``) and strengths (``HUMANOID_STRENGTH``), both
+        documented with their sources in docs/modelling.md. The paper gives neither; q_1 is the
+        absolute angle of the lower leg, whose range is wide because the foot is fixed.
         """
         return cls(
             a=np.array([0.473, 0.422, 0.532, 0.282, 0.355]),
@@ -139,8 +136,9 @@ class PlanarChain:
             inertia=np.array([0.0855, 0.399, 1.92, 0.0227, 0.0434]),
             g=9.81,
             names=HUMANOID_JOINTS,
-            q_min=np.array([0.0, -165.0, -45.0, -420.0, -160.0]) * DEG,
-            q_max=np.array([210.0, 5.0, 160.0, -100.0, 5.0]) * DEG,
+            q_min=HUMANOID_RANGES[0] * DEG,
+            q_max=HUMANOID_RANGES[1] * DEG,
+            u_max=HUMANOID_STRENGTH.copy(),
         )
 
     @property

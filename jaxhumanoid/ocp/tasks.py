@@ -1,10 +1,14 @@
-"""Tasks: start and goal postures of a planar chain, and the paper's benchmark tasks T1-T4 (Sec. III-B).
+"""Tasks: start and goal postures of a planar chain, and the benchmark tasks T1-T4 (Sec. III-B).
 
-Every number the paper leaves open for T1-T4 lives here: reference postures, goal tolerance and
-the cost weights of (7). The joint ranges and strengths belong to the body
-(``PlanarChain.q_min``/``q_max``/``u_max``); a task may narrow or widen the ranges with its own.
-``examples/human/`` poses the same four tasks for a body with adult ranges of motion and
-strengths, with weights per task (``effort_weights``; docs/modelling.md).
+Every number the paper leaves open for T1-T4 lives here or on the body: reference postures, goal
+tolerance and the cost weights of (7) per task; the joint ranges and strengths are the body's
+(``PlanarChain.humanoid``: adult ranges of motion and strengths), and a task may narrow or widen
+the ranges with its own. The paper adjusts the weights "from task to task, with the goal of
+obtaining human-like behaviors and well-balanced contributions by each cost term": here the
+torque term is an effort in fractions of each joint's strength (``effort_weights``), and T2, the
+fastest fall, weighs accelerations and torque rates twice as much (docs/modelling.md).
+``examples/paper/`` keeps the paper's own posing (a ±1000 N m torque box, wider ranges, one set of
+weights) for Table II.
 
 Postures of the humanoid (relative angles q, rad; conventions in ``jaxhumanoid.model``):
 
@@ -12,15 +16,16 @@ Postures of the humanoid (relative angles q, rad; conventions in ``jaxhumanoid.m
   arms hanging with the elbows slightly bent.
 * prone ("sphinx on the knees"): face down, knee, elbow and hand on the ground, forearms flat
   forward, elbows under the shoulders, hips 5 cm and shoulders 27 cm above the ground.
-* supine: on the back with the knees up and the foot flat, hip on the ground, trunk raised 14 deg,
-  arms stretched overhead with the hands on the ground behind the head.
+* supine: on the back with the knees up and the foot flat, the hip on the ground, the trunk raised
+  19 deg and the hands on the ground beside the head (160 deg of shoulder flexion, 120 deg of
+  elbow flexion).
 
 The lying postures were designed (by a small constrained least-squares fit under the nominal
 contact law) so that each is a static equilibrium that satisfies the steady-foot constraints (5)
-with margin: foot load f_n0 = 150-180 N and centre of pressure u_1/f_n0 inside [-a0f, a0b] with
->= 4 cm to spare. No lying posture can do so under the nominal and the relaxed contact laws at
-once (the relaxed law changes the load shared between the contacts and the foot by hundreds of
-newtons); the two-stage strategy therefore re-seats the start posture by millimetres for stage 1
+with margin (>= 3 cm of centre-of-pressure margin). No lying posture can do so under the nominal
+and the relaxed contact laws at once with the same joint angles (the relaxed law changes the
+load shared between the contacts and the foot by hundreds of newtons); the two-stage strategy
+therefore re-seats the start posture by millimetres for the relaxed-law stages
 (``strategy.posture.reseat_for_contact``) so that the relaxed law carries the same contact forces.
 """
 
@@ -30,11 +35,11 @@ import dataclasses
 
 import numpy as np
 
-from jaxhumanoid.model.params import DEG, PlanarChain
+from jaxhumanoid.model.params import DEG, HUMANOID_STRENGTH, PlanarChain
 
 STANDING = np.array([93.0 * DEG, 0.0, 0.0, -np.pi, -12.0 * DEG])
 PRONE = np.array([3.277316, -0.256628, -0.299796, -4.512321, -1.369876])
-SUPINE = np.array([0.697404, -1.787126, 1.333707, -0.441913 - 2 * np.pi, -0.003109])
+SUPINE = np.array([0.703314, -1.776783, 1.39798, -5.93413, -2.094397])
 
 GOAL_TOLERANCE = 0.05  # rad: the goal posture is "slightly relaxed by bound constraints" (Sec. II-G)
 CONTACT_FORCE_LIMIT = 1.0e4  # N: box on augmented contact-force variables
@@ -154,11 +159,17 @@ class Task:
         return q_min, q_max
 
 
+# (7) per task: effort weights on the torques; T2 damps the fall with twice the acceleration
+# and torque-rate weights.
+_EFFORT = effort_weights(HUMANOID_STRENGTH)
+_CALM = Weights(w_u=_EFFORT, w_qd=1.0, w_dqd=0.02, w_du=1e-5)
+_FALL = Weights(w_u=_EFFORT, w_qd=1.0, w_dqd=0.04, w_du=2e-5)
+
 TASKS = {
-    "T1": Task("prone-to-stand", PRONE, STANDING, (1, 4, 5), key="T1"),
-    "T2": Task("stand-to-prone", STANDING, PRONE, (1, 4, 5), key="T2"),
-    "T3": Task("supine-to-stand", SUPINE, STANDING, (2, 5), key="T3"),
-    "T4": Task("stand-to-supine", STANDING, SUPINE, (2, 5), key="T4"),
+    "T1": Task("prone-to-stand", PRONE, STANDING, (1, 4, 5), weights=_CALM, key="T1"),
+    "T2": Task("stand-to-prone", STANDING, PRONE, (1, 4, 5), weights=_FALL, key="T2"),
+    "T3": Task("supine-to-stand", SUPINE, STANDING, (2, 5), weights=_CALM, key="T3"),
+    "T4": Task("stand-to-supine", STANDING, SUPINE, (2, 5), weights=_CALM, key="T4"),
 }
 _BY_NAME = {t.name: t for t in TASKS.values()}
 

@@ -23,9 +23,9 @@ from jaxhumanoid.progress import IterationLine, Progress
 from jaxhumanoid.runtime import enable_compilation_cache, writable_dir
 from jaxhumanoid.solvers import ipopt_capi
 from jaxhumanoid.strategy.posture import find_equilibrium
-from jaxhumanoid.strategy.problem import GUESSES, stage_problem
+from jaxhumanoid.strategy.problem import DEFAULT_GUESS, GUESSES, stage_problem
 from jaxhumanoid.strategy.solution import Solution
-from jaxhumanoid.strategy.solve import HANDOVERS, solve
+from jaxhumanoid.strategy.solve import DEFAULT_HANDOVER, DEFAULT_STAGE1_SOLVER, HANDOVERS, solve
 from jaxhumanoid.strategy.taskfile import load_task_file, task_files
 from jaxhumanoid.studies import ENGINES, sweep
 from jaxhumanoid.tracking import montecarlo
@@ -98,9 +98,9 @@ SOLVE_DEFAULTS = {
     "N": 100,
     "T": 5.0,
     "N1": None,
-    "guess": "linear",
-    "handover": "direct",
-    "stage1_solver": None,
+    "guess": DEFAULT_GUESS,
+    "handover": DEFAULT_HANDOVER,
+    "stage1_solver": DEFAULT_STAGE1_SOLVER,
     "scaling": "none",
 }
 
@@ -117,8 +117,6 @@ def solve_arguments(args) -> dict:
         settings.update({k: kwargs.pop(k) for k in list(kwargs) if k in SOLVE_DEFAULTS})
         base = kwargs
     settings.update({k: getattr(args, k) for k in SOLVE_DEFAULTS if getattr(args, k) is not None})
-    if settings["stage1_solver"] == "same":
-        settings["stage1_solver"] = None
     if getattr(args, "foot_margin", None) is not None:
         base["foot_margin"] = FootMargin(*args.foot_margin)
     return {**base, **settings}
@@ -155,14 +153,25 @@ def _table2_markdown(records) -> str:
         "| paper: iterations | paper: time (s) |",
         "|---|---|---|---|---|---|---|",
     ]
+    keys = {name: key for key, t in TASKS.items() for name in (key, t.name)}
     for r in records:
-        paper = PAPER_TABLE2.get(r["task"], {}).get(r["scheme"])
+        paper = PAPER_TABLE2.get(keys.get(r["task"].removesuffix("-paper"), ""), {}).get(r["scheme"])
         p_it, p_t = paper if paper else ("failed", "failed")
         its = "+".join(str(i) for i in r["iterations"])
         times = "+".join(f"{t:.2f}" for t in r["solve_time_s"])
         status = " + ".join(r.get("stage_status", [r["status"]]))
         lines.append(f"| {r['task']} | {r['scheme']} | {status} | {its} | {times} | {p_it} | {p_t} |")
     return "\n".join(lines) + "\n"
+
+
+def _table2_cell(tf, task: str, scheme: str, solver: str, N: int, options: dict) -> Solution:
+    """One cell: a built-in task, or a task file with its own body, law, weights and settings
+    (the scheme, solver and N of the table replace the file's)."""
+    if tf is None:
+        return solve(task, scheme, solver=solver, N=N, options=options or None)
+    kwargs = tf.as_solve_kwargs()
+    kwargs.update(scheme=scheme, solver=solver, N=N, options={**(kwargs["options"] or {}), **options} or None)
+    return solve(**kwargs)
 
 
 def cmd_table2(args) -> int:
@@ -173,9 +182,11 @@ def cmd_table2(args) -> int:
     schemes = args.schemes or list(TABLE2_SCHEMES)
     cells = [(t, s) for t in tasks for s in schemes]
     progress = Progress(len(cells), quiet=args.quiet)
+    files = {t: load_task_file(t) for t in tasks if t.endswith(".toml")}
     for task, scheme in progress.iter(cells, label=lambda c: f"{c[0]} {c[1]}"):
-        sol = solve(task, scheme, solver=args.solver, N=args.N, options=options)
-        cell_dir = out / f"{task}_{scheme.replace(',', '_').replace('+', 'p')}"
+        sol = _table2_cell(files.get(task), task, scheme, args.solver, args.N, options)
+        name = files[task].task.name if task in files else task
+        cell_dir = out / f"{name}_{scheme.replace(',', '_').replace('+', 'p')}"
         rec = _save(sol, cell_dir)
         records.append(rec)
         progress.note(
@@ -349,19 +360,19 @@ def build_parser() -> argparse.ArgumentParser:
         "--guess",
         default=None,
         choices=list(GUESSES),
-        help="initial guess: linear (the paper's, default) or inverse_dynamics (its torques and forces)",
+        help="initial guess: inverse_dynamics (default; torques and forces that satisfy its dynamics) or linear",
     )
     p.add_argument(
         "--handover",
         default=None,
         choices=list(HANDOVERS),
-        help="2S from stage 1 to stage 2: direct (the paper's, default) or continuation in the contact law",
+        help="2S from stage 1 to stage 2: continuation in the contact law (default) or direct (the paper's)",
     )
     p.add_argument(
         "--stage1-solver",
         default=None,
         choices=["ipopt", "ipm", "casadi", "same"],
-        help="the solver of 2S's relaxed-law stages; same: --solver (the default)",
+        help="the solver of 2S's relaxed-law stages (default ipopt); same: --solver",
     )
     p.add_argument(
         "--scaling",
@@ -396,7 +407,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("table2", help="run the 16 cells of the paper's Table II")
     p.add_argument("--out", default="out/table2")
-    p.add_argument("--tasks", nargs="*")
+    p.add_argument("--tasks", nargs="*", help="T1..T4 (default all) or task files, e.g. examples/paper/T1.toml")
     p.add_argument("--schemes", nargs="*")
     common(p)
     p.set_defaults(func=cmd_table2)

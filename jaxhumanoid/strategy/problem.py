@@ -17,6 +17,9 @@ from jaxhumanoid.ocp.nlp import NLP, Bounds
 from jaxhumanoid.ocp.scheme import Scheme, parse_scheme
 
 GUESSES = ("linear", "inverse_dynamics")
+# The default guess: with u and f from the inverse dynamics, stage 1 and coarse 1S solves of the
+# strength-limited tasks converge where the linear guess ends infeasible (docs/results.md).
+DEFAULT_GUESS = "inverse_dynamics"
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -84,7 +87,7 @@ def build_problem(
     q_start=None,
     model: PlanarChain | None = None,
     foot: FootParams | None = None,
-    guess: str = "linear",
+    guess: str = DEFAULT_GUESS,
     foot_margin: FootMargin | None = None,
 ) -> Problem:
     """The NLP (7) of one task under one scheme on an N-interval grid (one stage of a strategy).
@@ -93,8 +96,8 @@ def build_problem(
     ``model`` (the body, default ``PlanarChain.humanoid()``) must have as many links as the task has
     joints; ``foot`` defaults to ``FootParams.paper()``; ``q_start`` overrides the task's start
     posture (used by the 2S stage 1 re-seating). ``guess`` is the initial guess (``GUESSES``):
-    ``"linear"``, Sec. II-G's q linear from start to goal with u and f zero; ``"inverse_dynamics"``,
-    the same motion with u and f that satisfy its dynamics and force rows
+    ``"linear"``, Sec. II-G's q linear from start to goal with u and f zero; ``"inverse_dynamics"``
+    (default), the same motion with u and f that satisfy its dynamics and force rows
     (``transcription.inverse_dynamics_guess``). ``foot_margin`` tightens the steady-foot rows (5)
     (``model.foot.FootMargin``; default none).
     """

@@ -38,7 +38,7 @@ from jaxhumanoid.solvers.ipm import solve_ipm
 from jaxhumanoid.solvers.ipopt import solve_ipopt
 from jaxhumanoid.solvers.result import IterationCallback, NLPResult, constraint_violation, unscaled, unscaled_progress
 from jaxhumanoid.strategy.posture import check_start_margin, find_equilibrium, margins, reseat_for_contact
-from jaxhumanoid.strategy.problem import GUESSES, Problem, build_problem
+from jaxhumanoid.strategy.problem import DEFAULT_GUESS, GUESSES, Problem, build_problem
 from jaxhumanoid.strategy.solution import Solution, StageStats
 from jaxhumanoid.validation.casadi_backend import solve_casadi
 
@@ -67,6 +67,12 @@ STAGE1_FALLBACKS: tuple[tuple[dict, int | None], ...] = (
 
 HANDOVERS = ("direct", "continuation")
 CONTINUATION_STEPS = 4
+# The defaults of ``solve`` (docs/results.md measures the alternatives): the inverse-dynamics
+# guess (``problem.DEFAULT_GUESS``), the continuation hand-over, and IPOPT for the relaxed-law
+# stages, so that the far-start globalisation is one backend's and ``solver`` decides the
+# continuation to the nominal law, where every backend reaches the same optimum.
+DEFAULT_HANDOVER = "continuation"
+DEFAULT_STAGE1_SOLVER = "ipopt"
 # Later laws of the continuation start next to their optimum: a small barrier keeps them there.
 CONTINUATION_OPTIONS = {"mu_init": 1e-5}
 _LAW_FIELDS = tuple(f.name for f in dataclasses.fields(ContactParams))
@@ -371,10 +377,10 @@ def solve(
     contact: ContactParams | None = None,
     foot: FootParams | None = None,
     contact_stage1: ContactParams | None = None,
-    guess: str = "linear",
-    handover: str = "direct",
+    guess: str = DEFAULT_GUESS,
+    handover: str = DEFAULT_HANDOVER,
     continuation_steps: int = CONTINUATION_STEPS,
-    stage1_solver: str | None = None,
+    stage1_solver: str | None = DEFAULT_STAGE1_SOLVER,
     progress: StageProgress | None = None,
     foot_margin: ft.FootMargin | None = None,
     scaling: str = "none",
@@ -389,11 +395,13 @@ def solve(
     (default ``FootParams.paper()``) apply to both stages; ``contact`` (default nominal) is the law
     of the dynamic stage, ``contact_stage1`` (default ``ContactParams.relaxed()``) that of the
     pseudo-static stage 1. ``guess`` is the initial guess of the first stage (``GUESSES``): the
-    paper's linear one, or ``"inverse_dynamics"``, the same motion with torques and forces that
-    satisfy its dynamics (``transcription.inverse_dynamics_guess``). ``handover`` (``HANDOVERS``)
-    is how 2S passes from stage 1 to stage 2: ``"direct"`` (the paper's) or ``"continuation"``
-    in the contact law over ``continuation_steps`` steps (module docstring). When the body, the foot or
-    the law is given and the task's start posture does not keep the foot steady under them, it
+    paper's linear one, or ``"inverse_dynamics"`` (default), the same motion with torques and
+    forces that satisfy its dynamics (``transcription.inverse_dynamics_guess``). ``handover``
+    (``HANDOVERS``) is how 2S passes from stage 1 to stage 2: ``"direct"`` (the paper's) or
+    ``"continuation"`` (default) in the contact law over ``continuation_steps`` steps (module
+    docstring). ``stage1_solver`` runs the relaxed-law stages of 2S (default IPOPT; ``"same"`` or
+    None: ``solver``). When the body, the foot or the law is given and the task's start posture
+    does not keep the foot steady under them, it
     is moved to the nearest posture that does (``posture.find_equilibrium``; a warning says so),
     or a ValueError says none was found. ``progress`` (e.g. ``jaxhumanoid.progress.IterationLine``)
     is called after every solver iteration with (stage name, iteration, objective, primal
@@ -405,8 +413,9 @@ def solve(
     scheme = parse_scheme(scheme)
     if solver not in SOLVERS:
         raise ValueError(f"solver: {solver!r} not in {SOLVERS}")
+    stage1_solver = None if stage1_solver == "same" else stage1_solver
     if stage1_solver is not None and stage1_solver not in SOLVERS:
-        raise ValueError(f"stage1_solver: {stage1_solver!r} not in {SOLVERS} (or None: the solver)")
+        raise ValueError(f"stage1_solver: {stage1_solver!r} not in {SOLVERS} (or 'same' or None: the solver)")
     if guess not in GUESSES:
         raise ValueError(f"guess: {guess!r} not in {GUESSES}")
     if handover not in HANDOVERS:
