@@ -25,6 +25,7 @@ import time
 import numpy as np
 
 import jaxhumanoid as jh
+from jaxhumanoid.strategy.taskfile import solve_kwargs
 from jaxhumanoid.studies.compare import Outcome, agreement
 
 
@@ -32,10 +33,8 @@ def run_one(task: str, solver: str, scheme: str, N: int, overrides: dict) -> tup
     """One solve of a task key (scheme and N as given) or of a task file (its own settings), with
     ``overrides`` of ``solve``'s keyword arguments."""
     t0 = time.perf_counter()
-    if task.endswith(".toml"):
-        sol = jh.solve(**{**jh.load_task_file(task).as_solve_kwargs(), **overrides, "solver": solver})
-    else:
-        sol = jh.solve(task, scheme=scheme, solver=solver, N=N, **overrides)
+    grid = {} if task.endswith(".toml") else {"scheme": scheme, "N": N}
+    sol = jh.solve(**{**solve_kwargs(task), **grid, **overrides, "solver": solver})
     rec = sol.report()
     rec["wall_s"] = time.perf_counter() - t0
     return rec, Outcome(bool(sol.success), float(sol.objective), np.asarray(sol.q))

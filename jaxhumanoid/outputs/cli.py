@@ -26,7 +26,7 @@ from jaxhumanoid.strategy.posture import find_equilibrium
 from jaxhumanoid.strategy.problem import DEFAULT_GUESS, GUESSES, stage_problem
 from jaxhumanoid.strategy.solution import Solution
 from jaxhumanoid.strategy.solve import DEFAULT_HANDOVER, DEFAULT_STAGE1_SOLVER, HANDOVERS, solve
-from jaxhumanoid.strategy.taskfile import load_task_file, task_files
+from jaxhumanoid.strategy.taskfile import load_task_file, solve_kwargs, task_files
 from jaxhumanoid.studies import ENGINES, sweep
 from jaxhumanoid.tracking import montecarlo
 from jaxhumanoid.tracking.filter import SafetyFilter
@@ -153,25 +153,14 @@ def _table2_markdown(records) -> str:
         "| paper: iterations | paper: time (s) |",
         "|---|---|---|---|---|---|---|",
     ]
-    keys = {name: key for key, t in TASKS.items() for name in (key, t.name)}
     for r in records:
-        paper = PAPER_TABLE2.get(keys.get(r["task"].removesuffix("-paper"), ""), {}).get(r["scheme"])
+        paper = PAPER_TABLE2.get(r["task"], {}).get(r["scheme"])
         p_it, p_t = paper if paper else ("failed", "failed")
         its = "+".join(str(i) for i in r["iterations"])
         times = "+".join(f"{t:.2f}" for t in r["solve_time_s"])
         status = " + ".join(r.get("stage_status", [r["status"]]))
         lines.append(f"| {r['task']} | {r['scheme']} | {status} | {its} | {times} | {p_it} | {p_t} |")
     return "\n".join(lines) + "\n"
-
-
-def _table2_cell(tf, task: str, scheme: str, solver: str, N: int, options: dict) -> Solution:
-    """One cell: a built-in task, or a task file with its own body, law, weights and settings
-    (the scheme, solver and N of the table replace the file's)."""
-    if tf is None:
-        return solve(task, scheme, solver=solver, N=N, options=options or None)
-    kwargs = tf.as_solve_kwargs()
-    kwargs.update(scheme=scheme, solver=solver, N=N, options={**(kwargs["options"] or {}), **options} or None)
-    return solve(**kwargs)
 
 
 def cmd_table2(args) -> int:
@@ -182,10 +171,14 @@ def cmd_table2(args) -> int:
     schemes = args.schemes or list(TABLE2_SCHEMES)
     cells = [(t, s) for t in tasks for s in schemes]
     progress = Progress(len(cells), quiet=args.quiet)
-    files = {t: load_task_file(t) for t in tasks if t.endswith(".toml")}
+    # a task file brings its own body, law, weights and settings; the table's scheme, solver and N
+    # replace the file's
+    given = {t: solve_kwargs(t) for t in tasks}
     for task, scheme in progress.iter(cells, label=lambda c: f"{c[0]} {c[1]}"):
-        sol = _table2_cell(files.get(task), task, scheme, args.solver, args.N, options)
-        name = files[task].task.name if task in files else task
+        kw = given[task]
+        merged = {**(kw.get("options") or {}), **options} or None
+        sol = solve(**{**kw, "scheme": scheme, "solver": args.solver, "N": args.N, "options": merged})
+        name = task if isinstance(kw["task"], str) else kw["task"].name
         cell_dir = out / f"{name}_{scheme.replace(',', '_').replace('+', 'p')}"
         rec = _save(sol, cell_dir)
         records.append(rec)

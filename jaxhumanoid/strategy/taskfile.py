@@ -1,6 +1,7 @@
 """Task files: a body, a contact law, a task and its solve settings in one TOML file.
 
     name = "squat"                       # the task's name (required)
+    key = "T1"                           # optional short name in reports (default: name)
     [body]                               # optional; default the paper's humanoid
     preset = "humanoid"                  #   start from a preset body, then override fields, or
     a = [0.473, 0.422, 0.532]            #   give a, c, m, inertia (n each) for a chain of n links
@@ -49,6 +50,7 @@ from jaxhumanoid.runtime import read_toml
 PRESETS = {"humanoid": PlanarChain.humanoid}
 TABLES = {
     "name": None,
+    "key": None,
     "body": {
         "preset",
         "a",
@@ -185,6 +187,11 @@ def task_files(folder) -> list[pathlib.Path]:
     return out
 
 
+def solve_kwargs(task: str) -> dict[str, Any]:
+    """``solve``'s keyword arguments for a built-in task key or a task file (``*.toml``)."""
+    return load_task_file(task).as_solve_kwargs() if str(task).endswith(".toml") else {"task": task}
+
+
 def load_task_file(path) -> TaskFile:
     """Read and check a task file (see the module docstring)."""
     path = pathlib.Path(path)
@@ -215,6 +222,7 @@ def load_task_file(path) -> TaskFile:
             q_min=_angles(where, t, "q_min", model.n),
             q_max=_angles(where, t, "q_max", model.n),
             goal_tolerance=float(t.get("goal_tolerance", tasks.GOAL_TOLERANCE)),
+            key=str(data.get("key", "")),
         )
     except (TypeError, ValueError) as err:
         raise ValueError(f"{path}: {err}") from err
