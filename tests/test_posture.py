@@ -6,8 +6,12 @@ import pathlib
 import numpy as np
 import pytest
 
-from jaxhumanoid.model.params import FootParams, PlanarChain
+from jaxhumanoid.model import contact as ct
+from jaxhumanoid.model import kinematics as kin
+from jaxhumanoid.model.params import ContactParams, FootParams, PlanarChain
 from jaxhumanoid.ocp import tasks
+from jaxhumanoid.ocp import transcription as tr
+from jaxhumanoid.strategy import posture
 from jaxhumanoid.strategy.posture import MarginSpec, find_equilibrium, margins
 from jaxhumanoid.strategy.taskfile import load_task_file, task_files
 
@@ -36,6 +40,33 @@ def test_a_guess_off_equilibrium_is_moved_to_one_that_keeps_the_foot_steady():
     assert m.load >= spec.load_min - 1e-6 and m.friction <= 1 - spec.friction_margin + 1e-6
     foot = FootParams.paper()
     assert -foot.a0f + spec.cop_margin - 1e-6 <= m.cop <= foot.a0b - spec.cop_margin + 1e-6
+
+
+def test_reseating_for_a_softer_law_lifts_a_lightly_loaded_contact_instead_of_pressing_it():
+    body, foot, task = PlanarChain.humanoid(), FootParams.paper(), tasks.get_task("T1")
+    nominal, relaxed = ContactParams.nominal(), ContactParams.relaxed()
+    rows = np.asarray(task.active) - 1
+
+    def normal(law, q):
+        return np.asarray(ct.normal_force(law, np.asarray(kin.contact_gaps(body, foot, q))[rows]))
+
+    # the prone start with its hand asked to carry 0.5 N: lifted off to where it carries LIGHT_CONTACT
+    asked = normal(nominal, task.start) * np.array([1.0, 1.0, 0.0]) + np.array([0.0, 0.0, 0.5])
+    q = posture.seat_with_forces(body, foot, nominal, task.start, task.active, asked)
+    np.testing.assert_allclose(normal(nominal, q), np.maximum(asked, posture.LIGHT_CONTACT), rtol=1e-6)
+    assert normal(relaxed, q)[2] > 50.0  # the relaxed law reaches further: the hand would take load
+    p = tr.default_params(task, contact=nominal)
+    q_rel, dgap = posture.reseat_for_contact(p, q, task.active, relaxed)
+    f_rel = normal(relaxed, q_rel)
+    np.testing.assert_allclose(f_rel, normal(nominal, q), rtol=1e-6)
+    assert 0.01 < dgap < 0.06
+    # the posture carries what it carried: the same loads, hence nearly the same torques
+    u_nom, u_rel = (
+        margins(body, q, task.active, contact=nominal).u,
+        margins(body, q_rel, task.active, contact=relaxed).u,
+    )
+    np.testing.assert_allclose(u_rel, u_nom, atol=0.05 * np.abs(u_nom).max())
+    assert np.abs(margins(body, q, task.active, contact=relaxed).u - u_nom).max() > 10.0  # mutation: not re-seated
 
 
 def test_no_equilibrium_on_a_foot_too_short_is_a_clear_error():

@@ -41,7 +41,7 @@ def test_failed_stage_one_retries_with_the_fallback_and_counts_every_run(monkeyp
     calls = []
 
     def fake_run(solver, problem, x0, options, verbose, progress=None, scaling="none"):
-        calls.append((problem.layout.N, dict(options), np.array(x0)))
+        calls.append((problem.layout.N, dict(options), np.array(x0), problem))
         fail = problem.layout.pseudo_static and len(calls) == 1
         return _fake_result(problem, x0, "Infeasible_Problem_Detected" if fail else "Solve_Succeeded", 100 + len(calls))
 
@@ -50,7 +50,7 @@ def test_failed_stage_one_retries_with_the_fallback_and_counts_every_run(monkeyp
     sol = strat.solve("T1", "A,F+C,2S", solver=solver, N=10, N1=5, **paper)
     assert [c[0] for c in calls] == [5, 5, 10]
     assert calls[0][1]["mu_init"] == strat.STAGE1_DEFAULTS["mu_init"] and "mu_strategy" not in calls[0][1]
-    assert calls[1][1]["mu_strategy"] == "adaptive"
+    assert "mu_strategy" not in calls[1][1]  # the first fallback: the same options from the other guess
     first, second = sol.stages
     assert first.attempts == 2 and first.success and first.status == "Solve_Succeeded"
     assert first.iterations == 101 + 102 and first.solve_time_s == 2.0
@@ -63,12 +63,18 @@ def test_failed_stage_one_retries_with_the_fallback_and_counts_every_run(monkeyp
     runs = 1 + len(strat.STAGE1_FALLBACKS)
     assert len(calls) == runs + 1 and sol.stages[0].status == "Error" and sol.stages[0].attempts == runs
     assert not sol.success
-    # the restarts move the linear guess by about STAGE1_RESTART_SIGMA, the same way for one seed
     x = [c[2] for c in calls[:runs]]
-    np.testing.assert_array_equal(x[0], x[1])
-    assert 0 < np.max(np.abs(x[2] - x[0])) < 10 * strat.STAGE1_RESTART_SIGMA
-    np.testing.assert_array_equal(x[2], x[3])
-    assert np.max(np.abs(x[4] - x[2])) > 0
+    adaptive = ["mu_strategy" in c[1] for c in calls[:runs]]
+    assert adaptive == [False] + [fb.options.get("mu_strategy") == "adaptive" for fb in strat.STAGE1_FALLBACKS]
+    # the other guess is the inverse-dynamics one of the same stage-1 problem
+    np.testing.assert_array_equal(x[1], strat.with_guess(calls[0][3], "inverse_dynamics").bounds.x0)
+    assert np.max(np.abs(x[1] - x[0])) > 1.0  # torques and forces of the inverse dynamics
+    np.testing.assert_array_equal(x[2], x[0])
+    np.testing.assert_array_equal(x[3], x[1])
+    # the restarts move a guess by about STAGE1_RESTART_SIGMA, the same way for one seed
+    assert 0 < np.max(np.abs(x[4] - x[0])) < 10 * strat.STAGE1_RESTART_SIGMA
+    assert 0 < np.max(np.abs(x[5] - x[1])) < 10 * strat.STAGE1_RESTART_SIGMA
+    np.testing.assert_array_equal(x[6], x[4])
 
 
 def test_law_path_runs_geometrically_from_the_relaxed_to_the_nominal_law():

@@ -147,33 +147,42 @@ def _inverse_normal_force(contact: ContactParams, f):
 
 def reseat_for_contact(p: tr.OCPParams, q, active, new_contact: ContactParams, iters: int = 8):
     """Shift posture q by the least joint motion so that ``new_contact`` carries the same normal
-    forces at the loaded contacts as ``p.contact`` does at q (hence the same equilibrium torques
-    and foot reaction: the start posture keeps its steady-foot margins under the new law).
+    forces at the contacts as ``p.contact`` does at q (hence the same equilibrium torques and foot
+    reaction: the start posture keeps its steady-foot margins under the new law); see
+    ``seat_with_forces`` for the contacts that carry less than ``LIGHT_CONTACT``.
 
-    Returns (q_new, max |gap change| in m). Contacts carrying < 1 N are left alone.
+    Returns (q_new, max |gap change| in m).
     """
     q = np.asarray(q, dtype=float)
     idx = np.asarray(active, dtype=int) - 1
     gaps = np.asarray(kin.contact_gaps(p.model, p.foot, q))[idx]
     f_nom = np.asarray(ct.normal_force(p.contact, gaps))
     q_new = seat_with_forces(p.model, p.foot, new_contact, q, active, f_nom, iters)
-    loaded = f_nom > 1.0
-    if not np.any(loaded):
-        return q, 0.0
-    return q_new, float(np.max(np.abs(_inverse_normal_force(new_contact, f_nom[loaded]) - gaps[loaded])))
+    gaps_new = np.asarray(kin.contact_gaps(p.model, p.foot, q_new))[idx]
+    return q_new, float(np.max(np.abs(gaps_new - gaps)))
+
+
+LIGHT_CONTACT = 1.0  # N: a contact asked to carry less is lifted no higher than where it carries this
 
 
 def seat_with_forces(model: PlanarChain, foot: FootParams, contact: ContactParams, q, active, forces, iters: int = 8):
     """Posture q (n,) moved by the least joint motion (Gauss-Newton, minimum-norm steps) so that the
-    law ``contact`` carries the normal ``forces`` (k,) (N) at the ``active`` joints; contacts asked
-    for <= 1 N are left alone."""
+    law ``contact`` carries the normal ``forces`` (k,) (N) at the ``active`` joints.
+
+    A contact asked for less than ``LIGHT_CONTACT`` is left where it is when the law loads it
+    lightly there too; when the law presses it harder (a softer law reaches further: the relaxed
+    law of stage 1 carries ~200 N at a gap where the nominal one carries 0.5 N), it is lifted to
+    where the law carries ``LIGHT_CONTACT``, so that no contact takes load the posture did not have.
+    """
     q = np.asarray(q, dtype=float)
     forces = np.asarray(forces, dtype=float)
-    loaded = forces > 1.0
-    if not np.any(loaded):
+    rows_all = np.asarray(active, dtype=int) - 1
+    at_q = np.asarray(ct.normal_force(contact, np.asarray(kin.contact_gaps(model, foot, q))[rows_all]))
+    seated = (forces > LIGHT_CONTACT) | (at_q > LIGHT_CONTACT)
+    if not np.any(seated):
         return q
-    target = _inverse_normal_force(contact, forces[loaded])
-    rows = (np.asarray(active, dtype=int) - 1)[loaded]
+    target = _inverse_normal_force(contact, np.maximum(forces[seated], LIGHT_CONTACT))
+    rows = rows_all[seated]
     jac = jax.jacfwd(lambda qq: kin.contact_gaps(model, foot, qq))
     q_new = q.copy()
     for _ in range(iters):

@@ -129,19 +129,32 @@ def build_problem(
     lo, hi = tr.bounds_full(layout, task.goal, q_min, q_max, np.asarray(p.model.u_max), task.goal_tolerance)
     free = layout.free_mask()
     kinds = np.tile(layout.constraint_kinds(), layout.N)
-    Z0 = tr.initial_guess_full(layout, np.asarray(p.q_start), task.goal, T)
-    if guess == "inverse_dynamics":
-        Z0 = tr.inverse_dynamics_guess(layout, Z0, p)
-    x0 = Z0[free]
     xl, xu = lo[free], hi[free]
     bounds = Bounds(
-        x0=np.clip(x0, xl, xu),
+        x0=np.clip(initial_guess(layout, p, task.goal, guess), xl, xu),
         xl=xl,
         xu=xu,
         gl=np.zeros(nlp.m),
         gu=np.where(kinds == 0, 0.0, np.inf),
     )
     return Problem(task, scheme, layout, nlp, bounds, p)
+
+
+def initial_guess(layout: tr.Layout, p: tr.OCPParams, goal, guess: str) -> np.ndarray:
+    """The NLP vector of ``guess`` (``GUESSES``) from p's start posture to ``goal`` over p.T, before
+    clipping to the bounds."""
+    Z0 = tr.initial_guess_full(layout, np.asarray(p.q_start), np.asarray(goal), float(p.T))
+    if guess == "inverse_dynamics":
+        Z0 = np.asarray(tr.inverse_dynamics_guess(layout, Z0, p))
+    return np.asarray(Z0)[layout.free_mask()]
+
+
+def with_guess(problem: Problem, guess: str) -> Problem:
+    """``problem`` started from another initial guess (``GUESSES``); the NLP is the same."""
+    x0 = np.clip(
+        initial_guess(problem.layout, problem.p, problem.task.goal, guess), problem.bounds.xl, problem.bounds.xu
+    )
+    return dataclasses.replace(problem, bounds=dataclasses.replace(problem.bounds, x0=x0))
 
 
 def stage_problem(

@@ -38,7 +38,7 @@ from jaxhumanoid.solvers.ipm import solve_ipm
 from jaxhumanoid.solvers.ipopt import solve_ipopt
 from jaxhumanoid.solvers.result import IterationCallback, NLPResult, constraint_violation, unscaled, unscaled_progress
 from jaxhumanoid.strategy.posture import check_start_margin, find_equilibrium, margins, reseat_for_contact
-from jaxhumanoid.strategy.problem import DEFAULT_GUESS, GUESSES, Problem, build_problem
+from jaxhumanoid.strategy.problem import DEFAULT_GUESS, GUESSES, Problem, build_problem, with_guess
 from jaxhumanoid.strategy.solution import Solution, StageStats
 from jaxhumanoid.validation.casadi_backend import solve_casadi
 
@@ -52,16 +52,33 @@ STAGE1_DEFAULTS = {"mu_init": 1e-2}
 STAGE2_DEFAULTS = {"mu_init": 1e-3, "bound_push": 1e-6, "bound_frac": 1e-6}
 # Stage 1 can still end "infeasible" from its initial guess: its landscape is chaotic, and starts
 # 1e-4 apart end in different optima or fail (scripts/study_stage1.py). Each failed run is followed
-# by the next entry, in order, by every solver: (options, seed), where a seed moves every entry of
-# the initial guess by STAGE1_RESTART_SIGMA times a standard normal draw of that fixed seed. The
-# iterations and times of every run add up.
+# by the next fallback, in order, by every solver. The two guesses fail on different problems (on
+# perturbed T1 the inverse-dynamics guess fails where the linear one converges, on perturbed T3 the
+# other way round: docs/results.md), so every fallback is tried from both. The iterations and times
+# of every run add up.
 STAGE1_RESTART_SIGMA = 1e-4
-STAGE1_FALLBACKS: tuple[tuple[dict, int | None], ...] = (
-    ({"mu_strategy": "adaptive"}, None),
-    ({}, 1),
-    ({"mu_strategy": "adaptive"}, 1),
-    ({}, 2),
-    ({"mu_strategy": "adaptive"}, 2),
+
+
+@dataclasses.dataclass(frozen=True)
+class Fallback:
+    """One more run of a failed stage 1: solver ``options`` on top of the stage's; from the other
+    guess of ``GUESSES`` when ``other_guess``; with ``seed``, every entry of the guess moved by
+    ``STAGE1_RESTART_SIGMA`` times a standard normal draw of that fixed seed."""
+
+    options: dict
+    seed: int | None = None
+    other_guess: bool = False
+
+
+_ADAPTIVE = {"mu_strategy": "adaptive"}
+STAGE1_FALLBACKS: tuple[Fallback, ...] = (
+    Fallback({}, None, True),
+    Fallback(_ADAPTIVE, None, False),
+    Fallback(_ADAPTIVE, None, True),
+    Fallback({}, 1, False),
+    Fallback({}, 1, True),
+    Fallback(_ADAPTIVE, 1, False),
+    Fallback(_ADAPTIVE, 1, True),
 )
 
 
@@ -289,14 +306,15 @@ def _stage_one(
     t0 = time.perf_counter()
     first = stage_one_problem(task, scheme, final, N1, contact_stage1, guess)
     setup_first = time.perf_counter() - t0
+    other = with_guess(first, next(g for g in GUESSES if g != guess))
     name = "stage 1 (pseudo-static)"
     attempts = [_run_solver(solver, first, first.bounds.x0, options, verbose, _for_stage(progress, name), scaling)]
-    for extra, seed in STAGE1_FALLBACKS:
+    for fb in STAGE1_FALLBACKS:
         if attempts[-1].success:
             break
         report = _for_stage(progress, f"{name}, attempt {len(attempts) + 1}")
-        x0 = restart_point(first, seed)
-        attempts.append(_run_solver(solver, first, x0, {**options, **extra}, verbose, report, scaling))
+        x0 = restart_point(other if fb.other_guess else first, fb.seed)
+        attempts.append(_run_solver(solver, first, x0, {**options, **fb.options}, verbose, report, scaling))
     stats = _stage_stats(name, first, attempts, setup_first, first.bounds.x0)
     return stats, first.full(attempts[-1].x)
 
