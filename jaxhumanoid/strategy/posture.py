@@ -151,7 +151,7 @@ def reseat_for_contact(p: tr.OCPParams, q, active, new_contact: ContactParams, i
     reaction: the start posture keeps its steady-foot margins under the new law); see
     ``seat_with_forces`` for the contacts that carry less than ``LIGHT_CONTACT``.
 
-    Returns (q_new, max |gap change| in m).
+    Returns (q_new, max |gap change| in m; 0 for a body without contacts).
     """
     q = np.asarray(q, dtype=float)
     idx = np.asarray(active, dtype=int) - 1
@@ -159,7 +159,7 @@ def reseat_for_contact(p: tr.OCPParams, q, active, new_contact: ContactParams, i
     f_nom = np.asarray(ct.normal_force(p.contact, gaps))
     q_new = seat_with_forces(p.model, p.foot, new_contact, q, active, f_nom, iters)
     gaps_new = np.asarray(kin.contact_gaps(p.model, p.foot, q_new))[idx]
-    return q_new, float(np.max(np.abs(gaps_new - gaps)))
+    return q_new, float(np.max(np.abs(gaps_new - gaps), initial=0.0))
 
 
 LIGHT_CONTACT = 1.0  # N: a contact asked to carry less is lifted no higher than where it carries this
