@@ -173,8 +173,8 @@ def test_degeneracy_test_bookkeeping():
     assert bool(inertia.singular_rule(inertia.T_NONE, decided, dcd, dcd)[1])
 
 
-def _ic(nlp, Wvals, jac, dw_last, pert, mu=0.1):
-    ctx = make_context(nlp, O)
+def _ic(nlp, Wvals, jac, dw_last, pert, mu=0.1, o=O):
+    ctx = make_context(nlp, o)
     P = box_prob([-INF] * nlp.n, [INF] * nlp.n, [0.0] * nlp.m, [0.0] * nlp.m)
     zn, zm = jnp.zeros(nlp.n), jnp.zeros(nlp.m)
     return inertia.inertia_corrected_factor(
@@ -203,6 +203,21 @@ def test_inertia_correction_of_a_nonconvex_hessian():
     np.testing.assert_array_equal(r.pert, [1, 1, 0])
     r = _ic(nlp, [-1.0, 0.0, 0.0], [1.0, 1.0], 1.0, r.pert)
     assert bool(r.ok) and int(r.n_fact) == 3 and float(r.dw) == pytest.approx(8.0 / 3.0)
+
+
+def test_the_last_delta_w_as_first_trial_saves_the_plain_factorisation():
+    """inertia_first_trial="last": 1/3, 8/3 without the delta_w = 0 trial once the Hessian is
+    decided; while the degeneracy test is undetermined the plain trial still comes first."""
+    nlp = tp.dense_nlp("ic_nonconvex", 2, 1, lambda x, p: -0.5 * x[0] ** 2, lambda x, p: jnp.array([x[0] + x[1]]))
+    last = O.replace(inertia_first_trial="last")
+    r = _ic(nlp, [-1.0, 0.0, 0.0], [1.0, 1.0], 1.0, [1, 1, 0], o=last)
+    assert bool(r.ok) and int(r.n_fact) == 2 and float(r.dw) == pytest.approx(8.0 / 3.0)
+    r = _ic(nlp, [-1.0, 0.0, 0.0], [1.0, 1.0], 1.0, [0, 0, 0], o=last)
+    assert bool(r.ok) and int(r.n_fact) == 3 and float(r.dw) == pytest.approx(8.0 / 3.0)
+    convex = _ic(nlp, [1.0, 0.0, 1.0], [1.0, 1.0], 1.0, [1, 1, 0], o=last)  # the plain trial would do
+    assert bool(convex.ok) and int(convex.n_fact) == 1 and float(convex.dw) == pytest.approx(1.0 / 3.0)
+    with pytest.raises(ValueError, match="inertia_first_trial must be one of"):
+        O.replace(inertia_first_trial="always")
 
 
 def test_degenerate_jacobian_is_detected_after_degen_iters_max():

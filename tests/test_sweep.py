@@ -8,6 +8,10 @@ import dataclasses
 import json
 import pathlib
 import re
+import signal
+import subprocess
+import sys
+import time
 
 import numpy as np
 import pytest
@@ -20,6 +24,7 @@ from jaxhumanoid.studies import Crash, Outcome, Spec, agreement, load_spec, pars
 from jaxhumanoid.studies.compare import problem_agreement
 from jaxhumanoid.studies.engines import plan_queues
 from jaxhumanoid.studies.run import perturbed_contact, perturbed_start, perturbed_weights
+from jaxhumanoid.studies.sweep import select_cases
 from jaxhumanoid.studies.table import finished_ids, recovery
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -104,6 +109,21 @@ def test_a_spec_file_error_names_the_file(tmp_path):
 
 
 # -- perturbations --------------------------------------------------------------------------------
+
+
+def test_a_part_of_a_study_keeps_the_ids_of_the_whole():
+    spec = load_spec(ROOT / "examples" / "studies" / "robustness.toml")
+    part = select_cases(spec, solvers=["ipopt", "ipm"], draws=8)
+    assert len(part.cases) == 4 * 8 * 2 == len(spec.cases) * 2 // (3 * 5)
+    assert {c.solver for c in part.cases} == {"ipopt", "ipm"} and max(c.draw for c in part.cases) == 7
+    assert {c.id for c in part.cases} < {c.id for c in spec.cases}
+    assert select_cases(spec).cases == spec.cases
+    with pytest.raises(ValueError, match=r"--solvers: \['snopt'\] not among the spec's solvers"):
+        select_cases(spec, solvers=["ipopt", "snopt"])
+    with pytest.raises(ValueError, match="--draws: expected an integer >= 1"):
+        select_cases(spec, draws=0)
+    with pytest.raises(ValueError, match="--draws: the spec has no"):
+        select_cases(parse_spec(TINY), draws=2)
 
 
 def test_perturbations_scale_the_task_values():
@@ -240,11 +260,46 @@ def test_the_cli_checks_its_arguments(tmp_path, capsys):
     assert "--workers" in capsys.readouterr().err
     assert cli_main(["sweep", str(spec), "--out", str(tmp_path), "--address", "tcp://x:1"]) == 2
     assert "--address" in capsys.readouterr().err
+    assert cli_main(["sweep", str(spec), "--out", str(tmp_path), "--solvers", "snopt"]) == 2
+    assert "--solvers" in capsys.readouterr().err
     (tmp_path / "cases.csv").write_text("id,other\n")
     assert cli_main(["sweep", str(spec), "--out", str(tmp_path)]) == 2
     assert "other columns" in capsys.readouterr().err
     with (tmp_path / "cases.csv").open() as fh:
         assert next(csv.reader(fh)) == ["id", "other"]  # an existing table is never overwritten
+
+
+def _children(pid: int) -> list[int]:
+    out = subprocess.run(["pgrep", "-P", str(pid)], capture_output=True, text=True).stdout
+    return [int(x) for x in out.split()]
+
+
+def _alive(pid: int) -> bool:
+    try:
+        return pathlib.Path(f"/proc/{pid}/stat").read_text().split(")")[-1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
+
+
+@pytest.mark.skipif(not pathlib.Path("/proc").is_dir(), reason="reads /proc")
+def test_sigterm_stops_the_sweep_and_its_workers(tmp_path):
+    spec = tmp_path / "spec.toml"
+    spec.write_text('tasks = ["T3"]\nschemes = ["A,F+C,1S"]\nsolvers = ["ipopt"]\nN = [10, 11, 12, 13]\n')
+    cmd = [sys.executable, "-m", "jaxhumanoid", "--no-cache", "sweep", str(spec), "--out", str(tmp_path / "o")]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline, workers = time.monotonic() + 60, []
+    while not workers and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.2)
+        workers = _children(proc.pid)
+    assert workers, "the sweep started no worker process"
+    time.sleep(2.0)  # the worker is importing or solving
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130 and "resumes the study" in err
+    deadline = time.monotonic() + 20
+    while any(_alive(w) for w in workers) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not any(_alive(w) for w in workers)
 
 
 def test_problem_agreement_reads_the_saved_trajectories(tmp_path):

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 import pathlib
+import signal
 import sys
 import time
 
@@ -299,9 +300,15 @@ def cmd_check(args) -> int:
     return 0 if not failed else 1
 
 
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
 def cmd_sweep(args) -> int:
     """Exit 0 when every case of the spec has a row (failed cases included: they are results),
-    1 when some are pending, 130 when interrupted (the finished rows are kept: re-run to resume)."""
+    1 when some are pending, 130 when interrupted by Ctrl-C or SIGTERM (the running cases stop with
+    it, the finished rows are kept: re-run to resume)."""
+    previous = signal.signal(signal.SIGTERM, _interrupt)
     try:
         summary = sweep(
             args.spec,
@@ -312,10 +319,14 @@ def cmd_sweep(args) -> int:
             retry_failed=args.retry_failed,
             quiet=args.quiet,
             cache=not args.no_cache,
+            solvers=args.solvers,
+            draws=args.draws,
         )
     except KeyboardInterrupt:
         print(f"jaxhumanoid: interrupted; the same command resumes the study in {args.out}", file=sys.stderr)
         return 130
+    finally:
+        signal.signal(signal.SIGTERM, previous)
     return 0 if summary["n_pending"] == 0 else 1
 
 
@@ -455,6 +466,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--address", default=None, help="a running Dask scheduler (default: start a local cluster)")
     p.add_argument("--workers", type=int, default=1, help="worker processes (local pool or local cluster)")
     p.add_argument("--retry-failed", action="store_true", help="also re-run the cases that failed or crashed")
+    p.add_argument("--solvers", nargs="+", default=None, help="run only these of the spec's solvers")
+    p.add_argument("--draws", type=int, default=None, help="run only the first K random draws per task")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=cmd_sweep)
     return parser

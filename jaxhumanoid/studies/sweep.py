@@ -6,15 +6,17 @@
 writes ``DIR/cases.csv`` (a row per case, appended as each finishes), ``DIR/cases/<id>/`` (each
 solution: ``solution.npz`` and ``report.json``, or an inverse fit's ``fit.json``) and
 ``DIR/summary.json`` (``table.summarise``; rewritten at the end, also after an interruption).
-Running it again skips the finished cases.
+Running it again skips the finished cases. ``solvers`` and ``draws`` run a part of the spec
+(``select_cases``): its cases keep their ids, so the rest of the study later resumes from them.
 """
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import pathlib
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any, TextIO
 
 from jaxhumanoid.progress import Progress
@@ -41,6 +43,25 @@ def check_run(spec: Spec, engine: str, workers: int, address: str | None) -> Non
             ipopt_capi.check_options(ipopt_options)
         except ValueError as err:
             raise ValueError(f"options: {err}") from err
+
+
+def select_cases(spec: Spec, solvers: Sequence[str] | None = None, draws: int | None = None) -> Spec:
+    """The part of ``spec`` solved by ``solvers`` (a subset of the spec's) and, for a spec with
+    random draws, its first ``draws`` draws per task (draw i does not depend on their number)."""
+    cases = spec.cases
+    if solvers is not None:
+        have = tuple(dict.fromkeys(c.solver for c in spec.cases))
+        bad = [s for s in solvers if s not in have]
+        if bad or not solvers:
+            raise ValueError(f"--solvers: {bad or list(solvers)} not among the spec's solvers {have}")
+        cases = tuple(c for c in cases if c.solver in solvers)
+    if draws is not None:
+        if any(c.draw is None for c in cases):
+            raise ValueError("--draws: the spec has no [random] draws to take a part of")
+        if isinstance(draws, bool) or not isinstance(draws, int) or draws < 1:
+            raise ValueError(f"--draws: expected an integer >= 1, got {draws!r}")
+        cases = tuple(c for c in cases if c.draw is not None and c.draw < draws)
+    return dataclasses.replace(spec, cases=cases)
 
 
 def compile_group(case: Case) -> tuple[tuple, float]:
@@ -73,12 +94,15 @@ def sweep(
     quiet: bool = False,
     stream: TextIO | None = None,
     cache: bool = True,
+    solvers: Sequence[str] | None = None,
+    draws: int | None = None,
 ) -> dict[str, Any]:
     """Run every unfinished case of ``spec`` (a ``Spec`` or a spec file) on ``engine`` with
     ``workers`` worker processes (or the cluster at ``address``); returns the summary (module
     docstring). ``retry_failed`` also re-runs the cases whose last row did not succeed; ``cache``:
-    the workers use the persistent compilation cache."""
-    spec = spec if isinstance(spec, Spec) else load_spec(spec)
+    the workers use the persistent compilation cache; ``solvers``, ``draws``: run only that part
+    of the spec (``select_cases``)."""
+    spec = select_cases(spec if isinstance(spec, Spec) else load_spec(spec), solvers, draws)
     check_run(spec, engine, workers, address)
     out = writable_dir(out)
     table = Table(out / TABLE, columns(spec))

@@ -1,10 +1,11 @@
 """Inertia correction, Algorithm IC of the IPOPT paper (Sec. 3.1), with IPOPT's degeneracy test.
 
 K of (13) must have inertia (n, m, 0). Trial factorisations add delta_w to the Hessian block
-(first trial: 0; after a wrong inertia: ``first_hessian_perturbation`` or
-max(min_hessian_perturbation, perturb_dec_fact delta_w_last), then growth by perturb_inc_fact_first
-or perturb_inc_fact) and, when K is singular, delta_c = jacobian_regularization_value
-mu^jacobian_regularization_exponent to the constraint block.
+(first trial: 0, or with ``inertia_first_trial="last"`` the decreased memory perturb_dec_fact
+delta_w_last once the Hessian's degeneracy is decided; after a wrong inertia:
+``first_hessian_perturbation`` or max(min_hessian_perturbation, perturb_dec_fact delta_w_last),
+then growth by perturb_inc_fact_first or perturb_inc_fact) and, when K is singular, delta_c =
+jacobian_regularization_value mu^jacobian_regularization_exponent to the constraint block.
 
 IPOPT's degeneracy test (PDPerturbationHandler): while it is undetermined whether the Hessian
 (h) or the Jacobian (j) is structurally degenerate, the trial pattern (delta_c, delta_w) that
@@ -125,7 +126,10 @@ def inertia_corrected_factor(
     undetermined0 = (pert[0] == UNDETERMINED) | (pert[1] == UNDETERMINED)
     test0 = jnp.where(undetermined0, T_00, T_NONE)
     dc0 = jnp.where(pert[1] == DEGENERATE, delta_cd, 0.0)
-    dw0 = jnp.where(pert[0] == DEGENERATE, wrong_inertia_dw(o, 0.0, dw_last), 0.0)
+    warm = pert[0] == DEGENERATE
+    if o.inertia_first_trial == "last":
+        warm = warm | ((pert[0] == NOT_DEGENERATE) & (dw_last > 0.0))
+    dw0 = jnp.where(warm, wrong_inertia_dw(o, 0.0, dw_last), 0.0)
 
     def cond(c):
         ok, dw, _, t = c[:4]

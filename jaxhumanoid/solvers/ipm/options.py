@@ -102,6 +102,11 @@ class IPMOptions:
     jacobian_regularization_exponent: float = 0.25
     max_inertia_trials: int = 60
     degen_iters_max: int = 3  # IPOPT's degeneracy test: iterations before a part is declared degenerate
+    # the first trial of an iteration: "zero" (IPOPT's: delta_w = 0 first), or "last": once the
+    # degeneracy test has decided the Hessian and the last iteration needed delta_w > 0, start at
+    # max(min_hessian_perturbation, perturb_dec_fact delta_w_last) (one factorisation fewer
+    # wherever the plain trial would fail again)
+    inertia_first_trial: str = "zero"
     # linear algebra: adaptive iterative refinement (IPOPT's names and defaults)
     min_refinement_steps: int = 1
     max_refinement_steps: int = 10
@@ -196,6 +201,7 @@ _POS_INT = (
 )
 SCALING_METHODS = ("gradient-based", "none")
 MU_STRATEGIES = ("monotone", "adaptive")
+INERTIA_FIRST_TRIALS = ("zero", "last")
 
 
 def validate(o: IPMOptions) -> None:
@@ -243,6 +249,10 @@ def validate(o: IPMOptions) -> None:
         )
     if o.mu_strategy not in MU_STRATEGIES:
         raise ValueError(f"IPMOptions.mu_strategy must be one of {MU_STRATEGIES}, got {o.mu_strategy!r}")
+    if o.inertia_first_trial not in INERTIA_FIRST_TRIALS:
+        raise ValueError(
+            f"IPMOptions.inertia_first_trial must be one of {INERTIA_FIRST_TRIALS}, got {o.inertia_first_trial!r}"
+        )
     if o.sigma_min >= o.sigma_max:
         raise ValueError("IPMOptions.sigma_min must be < sigma_max")
     if o.min_hessian_perturbation >= o.max_hessian_perturbation:
