@@ -14,9 +14,13 @@ from jaxhumanoid.ocp import transcription as tr
 from jaxhumanoid.strategy import posture
 from jaxhumanoid.strategy.posture import MarginSpec, find_equilibrium, margins
 from jaxhumanoid.strategy.taskfile import load_task_file, task_files
+from jaxhumanoid.studies import load_spec
+from jaxhumanoid.studies.run import perturbed_contact, perturbed_start
 
 EXAMPLES = pathlib.Path(__file__).resolve().parents[1] / "examples"
+ROOT = EXAMPLES.parent
 DEG = np.pi / 180
+ZERO = MarginSpec(load_min=0.0, friction_margin=0.0, cop_margin=0.0, clearance=-1.0)  # (5) itself
 
 
 @pytest.mark.parametrize("key", ["T1", "T3"])
@@ -67,6 +71,29 @@ def test_reseating_for_a_softer_law_lifts_a_lightly_loaded_contact_instead_of_pr
     )
     np.testing.assert_allclose(u_rel, u_nom, atol=0.05 * np.abs(u_nom).max())
     assert np.abs(margins(body, q, task.active, contact=relaxed).u - u_nom).max() > 10.0  # mutation: not re-seated
+
+
+def test_reseating_keeps_the_foot_steady_where_the_least_motion_would_tip_it():
+    """Draw 9 of T1 in the robustness study: the start carries 0.1 M g on the foot. The least
+    motion that seats it for the relaxed law moves the ankle torque by ~3 N m and the centre of
+    pressure off the sole (the plain seat breaks (5)); the reseat with the ankle row keeps (5)."""
+    spec = load_spec(ROOT / "examples" / "studies" / "robustness.toml")
+    case = next(c for c in spec.cases if c.task == "T1" and c.draw == 9 and c.solver == "ipopt")
+    law = perturbed_contact(None, dict(case.factors))
+    task, _ = perturbed_start(case, tasks.get_task("T1"), PlanarChain.humanoid(), law, None)
+    p = tr.default_params(task, contact=law)
+    relaxed = ContactParams.relaxed()
+    q = np.asarray(task.start)
+    idx = np.asarray(task.active) - 1
+    f_nom = np.asarray(ct.normal_force(law, np.asarray(kin.contact_gaps(p.model, p.foot, q))[idx]))
+    plain = posture.seat_with_forces(p.model, p.foot, relaxed, q, task.active, f_nom)
+    assert posture.margins(p.model, q, task.active, law, spec=ZERO).ok
+    assert not posture.margins(p.model, plain, task.active, relaxed, spec=ZERO).ok  # the failure it mends
+    q_rel, dgap = posture.reseat_for_contact(p, q, task.active, relaxed)
+    m = posture.margins(p.model, q_rel, task.active, relaxed, spec=ZERO)
+    assert m.ok and np.all(m.foot > 1.0) and dgap < 0.05
+    forces = np.asarray(ct.normal_force(relaxed, np.asarray(kin.contact_gaps(p.model, p.foot, q_rel))[idx]))
+    np.testing.assert_allclose(forces, f_nom, rtol=0.1, atol=2.0)
 
 
 def test_no_equilibrium_on_a_foot_too_short_is_a_clear_error():
