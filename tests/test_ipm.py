@@ -128,6 +128,7 @@ def test_warm_start_and_max_iter():
         ({"kappa_mu": 1.5}, "kappa_mu"),
         ({"max_iter": 0}, "max_iter"),
         ({"nlp_scaling_method": "foo"}, "nlp_scaling_method.*gradient-based"),
+        ({"kkt_method": "lu"}, "kkt_method.*block_ldl.*condensed"),
         ({"no_such_option": 1}, "unknown IPM option"),
     ],
 )

@@ -26,7 +26,7 @@ from jaxhumanoid.solvers.ipm import kkt
 from jaxhumanoid.solvers.ipm.options import IPMOptions
 from jaxhumanoid.solvers.ipm.problem import Context
 from jaxhumanoid.solvers.ipm.state import Prob
-from jaxhumanoid.solvers.ipm.step import assemble_base, factorize
+from jaxhumanoid.solvers.ipm.step import assemble_base, factor_kkt, factorize
 
 # the trial pattern of the degeneracy test: none, (0, 0), (delta_c, 0), (0, delta_w), (delta_c, delta_w)
 T_NONE, T_00, T_C0, T_0X, T_CX = 0, 1, 2, 3, 4
@@ -38,7 +38,7 @@ class Inertia(NamedTuple):
 
     A: jax.Array
     B: jax.Array
-    fac: kkt.Factor
+    fac: kkt.Factor | kkt.CondensedFactor
     invs: tuple  # eliminated rows' inverse pivots (``step.kkt_parts``)
     ok: jax.Array  # inertia (n, m, 0) reached
     dw: jax.Array  # delta_w, delta_c of the accepted factorisation
@@ -120,8 +120,8 @@ def inertia_corrected_factor(
     S_, nb = st.S, st.nb
     base = assemble_base(ctx, P, Wvals, jac)
     z3 = jnp.zeros((S_, nb, nb))
-    i0 = jnp.zeros((), jnp.int64)
-    fac0 = kkt.Factor(z3, jnp.ones((S_, nb)), jnp.zeros((S_, st.b_rows.size, nb)), i0, i0, i0, jnp.ones((S_, nb)))
+    # the loop's first carry: zeros shaped like the chosen method's factor (the loop runs once at least)
+    fac0 = jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), jax.eval_shape(lambda: factor_kkt(ctx, z3, z3)))
     sigs = (sig_x, sig_s, sig_p, sig_n)
     undetermined0 = (pert[0] == UNDETERMINED) | (pert[1] == UNDETERMINED)
     test0 = jnp.where(undetermined0, T_00, T_NONE)

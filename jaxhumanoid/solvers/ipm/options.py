@@ -107,7 +107,11 @@ class IPMOptions:
     # max(min_hessian_perturbation, perturb_dec_fact delta_w_last) (one factorisation fewer
     # wherever the plain trial would fail again)
     inertia_first_trial: str = "zero"
-    # linear algebra: adaptive iterative refinement (IPOPT's names and defaults)
+    # linear algebra: the KKT solve, "block_ldl" (the block LDL^T over whole stages) or
+    # "condensed" (each stage's local unknowns eliminated first, then the recursion over the
+    # unknowns that link the stages; ``kkt.condensed``); both give the exact inertia
+    kkt_method: str = "block_ldl"
+    # adaptive iterative refinement (IPOPT's names and defaults)
     min_refinement_steps: int = 1
     max_refinement_steps: int = 10
     residual_ratio_max: float = 1e-10
@@ -202,6 +206,7 @@ _POS_INT = (
 SCALING_METHODS = ("gradient-based", "none")
 MU_STRATEGIES = ("monotone", "adaptive")
 INERTIA_FIRST_TRIALS = ("zero", "last")
+KKT_METHODS = ("block_ldl", "condensed")
 
 
 def validate(o: IPMOptions) -> None:
@@ -253,6 +258,8 @@ def validate(o: IPMOptions) -> None:
         raise ValueError(
             f"IPMOptions.inertia_first_trial must be one of {INERTIA_FIRST_TRIALS}, got {o.inertia_first_trial!r}"
         )
+    if o.kkt_method not in KKT_METHODS:
+        raise ValueError(f"IPMOptions.kkt_method must be one of {KKT_METHODS}, got {o.kkt_method!r}")
     if o.sigma_min >= o.sigma_max:
         raise ValueError("IPMOptions.sigma_min must be < sigma_max")
     if o.min_hessian_perturbation >= o.max_hessian_perturbation:

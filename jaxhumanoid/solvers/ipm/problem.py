@@ -32,6 +32,7 @@ class Context(NamedTuple):
     jc: np.ndarray
     hr: np.ndarray  # (nnz_hess,) Hessian rows / columns (lower triangle)
     hc: np.ndarray
+    cst: kkt.CondensedStructure | None = None  # the condensed KKT solve's structure, if chosen
 
     @property
     def n(self) -> int:
@@ -51,6 +52,7 @@ def make_context(nlp, o: IPMOptions) -> Context:
         np.asarray(nlp.jac_cols, np.int64),
         np.asarray(nlp.hess_rows, np.int64),
         np.asarray(nlp.hess_cols, np.int64),
+        kkt.condensed_structure_of(nlp) if o.kkt_method == "condensed" else None,
     )
 
 

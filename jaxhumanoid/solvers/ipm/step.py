@@ -18,6 +18,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from jaxhumanoid.solvers.ipm import kkt
+from jaxhumanoid.solvers.ipm.kkt import condensed
 from jaxhumanoid.solvers.ipm.options import IPMOptions
 from jaxhumanoid.solvers.ipm.problem import Context, masks, slacks
 from jaxhumanoid.solvers.ipm.state import Evals, Iterate, Prob
@@ -68,7 +69,24 @@ def factorize(ctx: Context, P: Prob, rr, base, sigs, dw, dc):
     sig_x, sig_s, sig_p, sig_n = sigs
     invs, diag_x, diag_c = kkt_parts(P, rr, sig_x, sig_s, sig_p, sig_n, dw, dc)
     A, B = kkt.add_diagonal(ctx.st, base[0], diag_x, diag_c), base[1]
-    return A, B, kkt.factor(ctx.st, A, B, early_exit=True), invs
+    return A, B, factor_kkt(ctx, A, B), invs
+
+
+def factor_kkt(ctx: Context, A, B):
+    """The factorisation of K = (A, B) by the chosen method (``IPMOptions.kkt_method``): a
+    ``kkt.Factor`` (block LDL^T, stopping early once the inertia is known to be wrong) or a
+    ``kkt.CondensedFactor``; both carry the inertia (npos, nneg, nzero)."""
+    if ctx.cst is not None:
+        return condensed.factor(ctx.cst, A, B)
+    return kkt.factor(ctx.st, A, B, early_exit=True)
+
+
+def solve_kkt(ctx: Context, fac, A, B, bx, bc):
+    """(dx, dy, residual) of K [dx; dy] = [bx; bc] with the factor of ``factor_kkt`` and the
+    options' iterative refinement."""
+    if ctx.cst is not None:
+        return condensed.solve(ctx.cst, fac, A, B, bx, bc, **refinement(ctx.o), with_residual=True)
+    return kkt.solve(ctx.st, fac, A, B, bx, bc, **refinement(ctx.o), with_residual=True)
 
 
 def solve_reduced(ctx: Context, P: Prob, A, B, fac, invs, rx, rs, rp, rn, c):
@@ -81,7 +99,7 @@ def solve_reduced(ctx: Context, P: Prob, A, B, fac, invs, rx, rs, rp, rn, c):
     inv_s, inv_p, inv_n = invs
     bx = jnp.where(P.fixed, 0.0, -rx)
     bc = jnp.where(P.free, 0.0, -c - inv_s * rs - inv_p * rp + inv_n * rn)
-    dx, dy, res = kkt.solve(ctx.st, fac, A, B, bx, bc, **refinement(ctx.o), with_residual=True)
+    dx, dy, res = solve_kkt(ctx, fac, A, B, bx, bc)
     # the residual ratio of the reduced system, from the refinement's last residual
     nsol = jnp.maximum(jnp.max(jnp.abs(dx), initial=0.0), jnp.max(jnp.abs(dy), initial=0.0))
     nrhs = jnp.maximum(jnp.max(jnp.abs(bx), initial=0.0), jnp.max(jnp.abs(bc), initial=0.0))

@@ -35,6 +35,9 @@ matrix is formed. The package, in the order of the data flow:
   block singular on its own although K is not); as the border it receives the Schur complements
   of all other blocks first. For the IPM's inertia-correction trials the loop can stop once the
   blocks done rule out inertia (n, m, 0) (Haynsworth bound, ``elimination.negative_caps``).
+- ``condensed``: the alternative with smaller blocks: each stage's local unknowns (contact
+  forces, their law's rows, inequality rows) eliminated for all stages at once, then the block
+  LDL^T above over the unknowns that link the stages; inertia by Haynsworth's additivity.
 - ``substitution``: the block forward/backward substitution (the couplings X_k applied by
   r-dimensional recursions, never stored) and adaptive iterative refinement on the
   equilibrated residual (IPOPT's rule).
@@ -50,6 +53,12 @@ from jaxhumanoid.solvers.ipm.kkt.assembly import (
     scale_blocks,
     to_blocks,
 )
+from jaxhumanoid.solvers.ipm.kkt.condensed import (
+    CondensedFactor,
+    CondensedStructure,
+    build_condensed,
+    condensed_structure_of,
+)
 from jaxhumanoid.solvers.ipm.kkt.elimination import Factor, factor, inertia_ok, negative_caps, pivot_paths
 from jaxhumanoid.solvers.ipm.kkt.pivot import QD_GAMMA
 from jaxhumanoid.solvers.ipm.kkt.structure import KKTStructure, build_structure, structure_of
@@ -57,6 +66,10 @@ from jaxhumanoid.solvers.ipm.kkt.substitution import border_coupling, solve, sol
 
 __all__ = [
     "QD_GAMMA",
+    "CondensedFactor",
+    "CondensedStructure",
+    "build_condensed",
+    "condensed_structure_of",
     "Factor",
     "KKTStructure",
     "add_diagonal",

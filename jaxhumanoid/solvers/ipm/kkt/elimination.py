@@ -192,10 +192,10 @@ def _factor(st: KKTStructure, A, B, rel_zero_tol, fast, early_exit=False):
     if rel_zero_tol is None:
         rel_zero_tol = 10.0 * st.nb * float(np.finfo(np.float64).eps)
     nbx, nb, S = st.nbx, st.nb, st.S
-    # the fill of blocks 1.. reaches only rows b_rows; if those are all primal, the dual part of
-    # their pivot blocks is the diagonal -D_c (the (2,2) block of K is diagonal) and the fast
+    # the fill of blocks 1.. reaches only rows b_rows; if those are all primal and the (2,2)
+    # block of K is diagonal, the dual part of their pivot blocks is the diagonal -D_c and the fast
     # path's fill-independent work is done for all blocks at once, outside the loop
-    diag_r = fast and 0 < nbx < nb and bool(np.all(st.b_rows < nbx))
+    diag_r = fast and st.dual_diagonal and 0 < nbx < nb and bool(np.all(st.b_rows < nbx))
     sc = _Scaled(A, Bs, qd_diag_pre(A, nbx) if diag_r else ())
     cnt, dead = jnp.zeros(3, jnp.int64), jnp.zeros((), bool)
     if S > 1:

@@ -46,6 +46,8 @@ class KKTStructure:
     pad_diag_t: np.ndarray  # (n_pad,)
     b_rows: np.ndarray  # (r,) local rows that are structurally nonzero in some B_k (sorted)
     b_cols: np.ndarray  # (c,) local columns that are structurally nonzero in some B_k
+    # the (2,2) block of K is diagonal (-D_c): true of an NLP's KKT matrix, not of a condensed one
+    dual_diagonal: bool = True
 
     @property
     def n_pad(self) -> int:
