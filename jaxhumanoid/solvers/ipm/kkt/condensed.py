@@ -281,29 +281,47 @@ def _reduced_blocks(cst: CondensedStructure, AU, BU_stage, F):
     return flat.reshape(A.shape), Bs
 
 
+class LocalElimination(NamedTuple):
+    NI: jax.Array  # (S, nI, nI), (S, nI): D_k^{-1} = NI_k diag(sI_k) NI_k^T, stage order
+    sI: jax.Array
+    info: jax.Array  # (S, 3) [nneg, nzero, path] of each D_k (``pivot``)
+    CI: jax.Array  # (S, 2 nU, nI) equilibrated couplings C_k
+    A_red: jax.Array  # (S, nU, nU) K_U's diagonal and sub-diagonal blocks in ``red``'s layout
+    B_red: jax.Array
+    dv: jax.Array  # (n + m,) equilibration of the unknowns
+
+
 @functools.partial(jax.jit, static_argnames=("cst", "rel_zero_tol", "fast"))
-def _factor_condensed(cst: CondensedStructure, A, B, rel_zero_tol=None, fast=True):
-    st = cst.st
-    d, As, Bc = equilibrate_compact(st, A, B)
+def eliminate_local(cst: CondensedStructure, A, B, rel_zero_tol=None, fast=True) -> LocalElimination:
+    """The first step of ``factor``: K equilibrated, every stage's D_k factored (one batch) and
+    K_U = K[U, U] - sum_k C_k D_k^{-1} C_k^T formed."""
+    d, As, Bc = equilibrate_compact(cst.st, A, B)
     flat = jnp.concatenate([As.reshape(-1), Bc.reshape(-1), jnp.zeros(1, As.dtype)])
     tol_I = 10.0 * cst.nI * float(np.finfo(np.float64).eps) if rel_zero_tol is None else rel_zero_tol
     DI = flat[cst.g_DI] + jnp.asarray(cst.I_pad)[:, :, None] * jnp.eye(cst.nI)
     CI = flat[cst.g_CI]
     if cst.nI:
-        NI, sI, infoI = jax.vmap(lambda D_: pivot(0.5 * (D_ + D_.T), cst.nIx, fast, tol_I))(DI)
+        NI, sI, info = jax.vmap(lambda D_: pivot(0.5 * (D_ + D_.T), cst.nIx, fast, tol_I))(DI)
     else:  # nothing local to eliminate: K_U is K
-        NI, sI, infoI = DI, jnp.zeros((cst.S, 0), As.dtype), jnp.zeros((cst.S, 3), jnp.int64)
+        NI, sI, info = DI, jnp.zeros((cst.S, 0), As.dtype), jnp.zeros((cst.S, 3), jnp.int64)
     CN = jnp.einsum("kun,kni->kui", CI, NI)
     F = jnp.einsum("kui,ki,kvi->kuv", CN, sI, CN)
     A_red, B_red = _reduced_blocks(cst, flat[cst.g_AU], flat[cst.g_BU], F)
-    red, _ = _factor(cst.red, A_red, B_red, rel_zero_tol, fast)
+    return LocalElimination(NI, sI, info, CI, A_red, B_red, d.reshape(-1)[cst.v_pos])
+
+
+@functools.partial(jax.jit, static_argnames=("cst", "rel_zero_tol", "fast"))
+def _factor_condensed(cst: CondensedStructure, A, B, rel_zero_tol=None, fast=True):
+    loc = eliminate_local(cst, A, B, rel_zero_tol, fast)
+    red, _ = _factor(cst.red, loc.A_red, loc.B_red, rel_zero_tol, fast)
     n_pos_pad = int(np.sum(cst.I_pad > 0))
     n_neg_pad = int(np.sum(cst.I_pad < 0))
-    nneg_I = jnp.sum(infoI[:, 0]) - n_neg_pad
-    nzero_I = jnp.sum(infoI[:, 1])
-    npos_I = cst.S * cst.nI - jnp.sum(infoI[:, 0]) - nzero_I - n_pos_pad
-    dv = d.reshape(-1)[cst.v_pos]
-    return CondensedFactor(NI, sI, CI, red, B_red, dv, red.npos + npos_I, red.nneg + nneg_I, red.nzero + nzero_I)
+    nneg_I = jnp.sum(loc.info[:, 0]) - n_neg_pad
+    nzero_I = jnp.sum(loc.info[:, 1])
+    npos_I = cst.S * cst.nI - jnp.sum(loc.info[:, 0]) - nzero_I - n_pos_pad
+    return CondensedFactor(
+        loc.NI, loc.sI, loc.CI, red, loc.B_red, loc.dv, red.npos + npos_I, red.nneg + nneg_I, red.nzero + nzero_I
+    )
 
 
 def factor(cst: CondensedStructure, A, B, rel_zero_tol: float | None = None, fast: bool = True) -> CondensedFactor:
