@@ -12,7 +12,7 @@ from test_kkt import random_staged_pattern, sparse_kkt
 import jaxhumanoid  # noqa: F401  (float64)
 import jaxhumanoid.validation.testproblems as tp
 from jaxhumanoid.model.params import ContactParams
-from jaxhumanoid.solvers.ipm import kkt, solve_ipm
+from jaxhumanoid.solvers.ipm import batch_solve_ipm, kkt, solve_ipm
 from jaxhumanoid.solvers.ipm.kkt import condensed
 from jaxhumanoid.strategy import solve as strat
 from jaxhumanoid.strategy.problem import build_problem
@@ -144,13 +144,20 @@ def test_humanoid_split_inertia_and_solve():
 
 
 def test_ipm_takes_the_same_steps_with_either_kkt_solve():
-    """The IPM's iterates do not depend on which exact KKT solve runs: on the cart-pole and on
-    stage 1 of T3 (N1 = 10), the same iterations and the same optimum to rounding."""
+    """The IPM's iterates do not depend on which exact KKT solve runs: on the cart-pole (alone and
+    in a vmapped batch) and on stage 1 of T3 (N1 = 10), the same iterations and the same optimum
+    to rounding."""
     nlp, bounds, p, _ = tp.cartpole_swingup(N=25, P=1)
     a = solve_ipm(nlp, p, bounds)
     b = solve_ipm(nlp, p, bounds, options={"kkt_method": "condensed"})
     assert a.success and b.success and a.iterations == b.iterations
     assert abs(a.objective - b.objective) <= 1e-10 * abs(a.objective)
+    # under the batch solve's vmap (local pivots batched over stages inside it), as each alone
+    P = jnp.stack([p, p * jnp.array([1.0, 1.1, 1.0, 1.0, 1.0])])
+    for member, alone in zip(batch_solve_ipm(nlp, P, bounds, options={"kkt_method": "condensed"}), (b, None)):
+        alone = alone or solve_ipm(nlp, P[1], bounds, options={"kkt_method": "condensed"})
+        assert member.success and member.iterations == alone.iterations
+        assert abs(member.objective - alone.objective) <= 1e-9 * abs(alone.objective)
     relaxed = ContactParams.relaxed()
     final = build_problem("T3", "A,F+C,2S", N=20)
     q1, _ = strat.reseat_for_contact(final.p, final.p.q_start, final.layout.active, relaxed)

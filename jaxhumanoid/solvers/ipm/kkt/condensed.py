@@ -17,7 +17,7 @@ U_{k+1}. With C_k = K[(U_k, U_{k+1}), I_k] (2 nU x nI) and D_k = K[I_k, I_k] (nI
     K_U = K[U, U] - sum_k C_k D_k^{-1} C_k^T
 
 is again block tridiagonal, on blocks of nU < nb unknowns. The D_k are factored as one batch
-(``pivot``: Cholesky-certified fast path, eigendecomposition where it fails), K_U by
+(``pivot``'s Cholesky-certified fast path, eigendecomposition where it fails), K_U by
 ``elimination`` (arrowhead order, inertia read off the recursion), and by Haynsworth's additivity
 
     inertia(K) = sum_k inertia(D_k) + inertia(K_U)
@@ -44,8 +44,8 @@ import numpy as np
 from jax import lax
 
 from jaxhumanoid.solvers.ipm.kkt.assembly import equilibrate_compact, from_blocks, matvec_compact, to_blocks
-from jaxhumanoid.solvers.ipm.kkt.elimination import Factor, _factor
-from jaxhumanoid.solvers.ipm.kkt.pivot import apply_inv, pivot
+from jaxhumanoid.solvers.ipm.kkt.elimination import Factor, _all_true, _factor
+from jaxhumanoid.solvers.ipm.kkt.pivot import apply_inv, eigen_pivot, quasidefinite_block
 from jaxhumanoid.solvers.ipm.kkt.structure import KKTStructure, _compress_stages, build_structure, structure_of
 from jaxhumanoid.solvers.ipm.kkt.substitution import border_coupling, solve_vec
 
@@ -281,6 +281,30 @@ def _reduced_blocks(cst: CondensedStructure, AU, BU_stage, F):
     return flat.reshape(A.shape), Bs
 
 
+def _local_pivots(DI, nIx, fast, tol):
+    """``pivot`` of every local block D_k (S, nI, nI) at once: the quasi-definite fast path for
+    all, and, unless every block (of every member of a ``vmap`` batch) took it, the
+    eigendecomposition for all, kept where the fast path failed. (``pivot``'s own batching rule
+    does not nest inside an outer ``vmap``.)"""
+    S, nI = DI.shape[0], DI.shape[1]
+    info_fast = jnp.broadcast_to(jnp.array([nI - nIx, 0, 0], jnp.int64), (S, 3))
+    sgn_fast = jnp.broadcast_to(jnp.concatenate([jnp.ones(nIx), -jnp.ones(nI - nIx)]), (S, nI))
+    eigen = jax.vmap(lambda D_: eigen_pivot(D_, tol))
+    if not (fast and nIx > 0):
+        return eigen(DI)
+    Nq, ok = jax.vmap(lambda D_: quasidefinite_block(D_, nIx))(DI)
+
+    def mixed():
+        Ne, se, ie = eigen(DI)
+        return (
+            jnp.where(ok[:, None, None], Nq, Ne),
+            jnp.where(ok[:, None], sgn_fast, se),
+            jnp.where(ok[:, None], info_fast, ie),
+        )
+
+    return lax.cond(_all_true(jnp.all(ok)), lambda: (Nq, sgn_fast, info_fast), mixed)
+
+
 class LocalElimination(NamedTuple):
     NI: jax.Array  # (S, nI, nI), (S, nI): D_k^{-1} = NI_k diag(sI_k) NI_k^T, stage order
     sI: jax.Array
@@ -301,7 +325,7 @@ def eliminate_local(cst: CondensedStructure, A, B, rel_zero_tol=None, fast=True)
     DI = flat[cst.g_DI] + jnp.asarray(cst.I_pad)[:, :, None] * jnp.eye(cst.nI)
     CI = flat[cst.g_CI]
     if cst.nI:
-        NI, sI, info = jax.vmap(lambda D_: pivot(0.5 * (D_ + D_.T), cst.nIx, fast, tol_I))(DI)
+        NI, sI, info = _local_pivots(0.5 * (DI + jnp.swapaxes(DI, 1, 2)), cst.nIx, fast, tol_I)
     else:  # nothing local to eliminate: K_U is K
         NI, sI, info = DI, jnp.zeros((cst.S, 0), As.dtype), jnp.zeros((cst.S, 3), jnp.int64)
     CN = jnp.einsum("kun,kni->kui", CI, NI)
