@@ -47,7 +47,7 @@ from jaxhumanoid.solvers.ipm.kkt.assembly import equilibrate_compact, from_block
 from jaxhumanoid.solvers.ipm.kkt.elimination import Factor, _all_true, _factor
 from jaxhumanoid.solvers.ipm.kkt.pivot import apply_inv, eigen_pivot, quasidefinite_block
 from jaxhumanoid.solvers.ipm.kkt.structure import KKTStructure, _compress_stages, build_structure, structure_of
-from jaxhumanoid.solvers.ipm.kkt.substitution import border_coupling, solve_vec
+from jaxhumanoid.solvers.ipm.kkt.substitution import border_coupling, refine, solve_vec
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -387,16 +387,10 @@ def _solve(cst: CondensedStructure, cf: CondensedFactor, A, B, rx, rc, min_steps
     def ratio(u, res):  # IPOPT's residual ratio in the equilibrated system
         return jnp.max(jnp.abs(cf.dv * res)) / jnp.maximum(jnp.max(jnp.abs(u / cf.dv)) + dr, 1e-300)
 
-    def cond(c):
-        u, res, t = c
-        return (t <= max_steps) & ((t <= min_steps) | (ratio(u, res) > residual_ratio_max))
+    def correct(res):
+        return cf.dv * solve_scaled(cst, cf, X1t, cf.dv * res)
 
-    def body(c):
-        u, res, t = c
-        u = u + cf.dv * solve_scaled(cst, cf, X1t, cf.dv * res)
-        return u, resid(u), t + 1
-
-    u, res, _ = lax.while_loop(cond, body, (jnp.zeros_like(rs), r, jnp.zeros((), jnp.int32)))
+    u, res = refine(correct, resid, ratio, r, min_steps, max_steps, residual_ratio_max)
     return u[: st.n], u[st.n :], jnp.max(jnp.abs(res))
 
 

@@ -119,16 +119,32 @@ def _solve(st, fac, A, B, rx, rc, min_steps, max_steps, residual_ratio_max):
     r = to_blocks(st, rx, rc)
     dr = jnp.max(jnp.abs(fac.d * r))
     X1t = border_coupling(st, fac, B)
+    u, res = refine(
+        lambda res: solve_vec(st, fac, X1t, res),
+        lambda u: r - matvec_compact(st, A, B, u),
+        lambda u, res: refinement_ratio(fac, u, res, dr),
+        r,
+        min_steps,
+        max_steps,
+        residual_ratio_max,
+    )
+    return (*from_blocks(st, u), jnp.max(jnp.abs(res)))
+
+
+def refine(correct, residual, ratio, r, min_steps, max_steps, residual_ratio_max):
+    """IPOPT's adaptive iterative refinement: u_{i+1} = u_i + ``correct``(r - K u_i), the residual
+    from ``residual``(u), until ``ratio``(u, residual) <= ``residual_ratio_max`` after at least
+    ``min_steps`` and at most ``max_steps`` refinements. One traced solve: the first pass is the
+    plain solve (from u = 0), the others refine. Returns (u, its residual)."""
 
     def cond(c):
-        _, res, t = c
-        return (t <= max_steps) & ((t <= min_steps) | (refinement_ratio(fac, c[0], res, dr) > residual_ratio_max))
+        u, res, t = c
+        return (t <= max_steps) & ((t <= min_steps) | (ratio(u, res) > residual_ratio_max))
 
     def body(c):
         u, res, t = c
-        u = u + solve_vec(st, fac, X1t, res)
-        return u, r - matvec_compact(st, A, B, u), t + 1
+        u = u + correct(res)
+        return u, residual(u), t + 1
 
-    # one traced solve: the first pass (t = 0) is the plain solve, the others refine
     u, res, _ = lax.while_loop(cond, body, (jnp.zeros_like(r), r, jnp.zeros((), jnp.int32)))
-    return (*from_blocks(st, u), jnp.max(jnp.abs(res)))
+    return u, res
