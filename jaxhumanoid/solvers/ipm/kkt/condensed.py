@@ -56,7 +56,7 @@ class CondensedStructure:
 
     Unknowns are numbered as v = [x; y] (n + m); id n + m is a zero slot (padding). Interior
     blocks are laid out [variables, +1 padding | constraints, -1 padding] (nIx + nIc), kept
-    blocks in the layout of ``red`` (stage k in reduced block ``blk[k]``). Hashed by identity:
+    blocks in the layout of ``red``. Hashed by identity:
     a static argument of the jitted factorisation and solve."""
 
     st: KKTStructure  # the full KKT matrix's block layout (input blocks, refinement)
@@ -192,10 +192,14 @@ def _blocks_of(ids_by_stage: list[np.ndarray], width: int, fill: int) -> np.ndar
     return out
 
 
-def build_condensed(n, m, var_stage, con_stage, hess_rows, hess_cols, jac_rows, jac_cols) -> CondensedStructure:
-    """The condensed structure of an NLP's KKT matrix (numpy, once per NLP)."""
+def build_condensed(
+    n, m, var_stage, con_stage, hess_rows, hess_cols, jac_rows, jac_cols, st: KKTStructure | None = None
+) -> CondensedStructure:
+    """The condensed structure of an NLP's KKT matrix (numpy, once per NLP); ``st``: the full
+    matrix's block layout where it is built already (``structure_of``)."""
     hr, hc, jr, jc = (np.asarray(a, np.int64).reshape(-1) for a in (hess_rows, hess_cols, jac_rows, jac_cols))
-    st = build_structure(n, m, var_stage, con_stage, hr, hc, jr, jc)
+    if st is None:
+        st = build_structure(n, m, var_stage, con_stage, hr, hc, jr, jc)
     vs, cs, S = _compress_stages(var_stage, con_stage)
     stage = np.concatenate([vs, cs])
     back = coupled(n, m, stage, hr, hc, jr, jc, -1)
@@ -211,14 +215,10 @@ def build_condensed(n, m, var_stage, con_stage, hess_rows, hess_cols, jac_rows, 
     # the reduced system: kept variables and rows, numbered in order; its own block layout
     uv, uc = ids[:n][~inner[:n]], ids[n:][~inner[n:]] - n
     red = build_structure(uv.size, uc.size, vs[uv], cs[uc], np.arange(uv.size), np.arange(uv.size), [], [])
-    if red.S != S:
-        raise ValueError("condensed KKT: the kept unknowns do not span every stage")
     nU = red.nb
     u_ids = np.concatenate([uv, n + uc])
     u_pos = np.concatenate([red.var_pos, red.con_pos])
-    blk = np.zeros(S, np.int64)
-    blk[np.concatenate([vs[uv], cs[uc]])] = u_pos // nU
-    reversed_ = bool(S > 1 and blk[0] != 0)
+    reversed_ = bool(u_pos[stage[u_ids] == 0][0] // nU != 0)  # stage 0 is not block 0
     U_ids = np.full((S, nU), n + m, np.int64)
     U_ids[stage[u_ids], u_pos % nU] = u_ids
     # interior blocks [variables | constraints], padded
@@ -257,7 +257,7 @@ def condensed_structure_of(nlp) -> CondensedStructure:
     if key not in nlp.cache:
         st = structure_of(nlp)
         nlp.cache[key] = build_condensed(
-            st.n, st.m, nlp.var_stage, nlp.con_stage, nlp.hess_rows, nlp.hess_cols, nlp.jac_rows, nlp.jac_cols
+            st.n, st.m, nlp.var_stage, nlp.con_stage, nlp.hess_rows, nlp.hess_cols, nlp.jac_rows, nlp.jac_cols, st
         )
     return nlp.cache[key]
 
