@@ -1,0 +1,226 @@
+"""Study: stage 1 of 2S on the robustness study's perturbed problems, under barrier and scaling variants.
+
+    OMP_NUM_THREADS=1 python scripts/study_stage1_options.py [--spec examples/studies/robustness.toml]
+        [--tasks T1 T2 T3 T4] [--draws 40] [--variants default adaptive physical adaptive+physical]
+        [--workers 2] [--out results/study_stage1_options.json] [--md results/study_stage1_options.md] [--quiet]
+
+Each problem is a draw of the study spec (weights, start posture, N, T drawn exactly as ``jaxhumanoid
+sweep`` draws them: ``studies.run.solve_case``), and only its stage 1 runs: the pseudo-static problem
+(8) under the relaxed law, by IPOPT (the default stage-1 solver), with the stage-1 fallbacks of
+``solve``. A variant changes the stage-1 options or the scaling:
+
+    default             solve's defaults (monotone barrier update, mu_init = 1e-2, no scaling)
+    adaptive            mu_strategy = "adaptive" (every fallback too)
+    physical            scaling = "physical" (``ocp.scaling``)
+    adaptive+physical   both
+    warm                stage 2's barrier settings: mu_init = 1e-3, bound_push = bound_frac = 1e-6, which
+                        keep a start that (nearly) satisfies the constraints, as the inverse-dynamics guess does
+    strength x1.5, x2   the torque box of stage 1 only widened to 1.5 or 2 times the strengths (stage 1 is
+                        a warm start: the final problem keeps the strengths)
+
+Per variant: the largest constraint violation of stage 1's start, the first run's success and iterations, the stage's success after the fallbacks and
+its iterations over all runs (what the study counts), the objective, and per problem whether the
+variant ends at the default's optimum (objectives within 1e-6 relative). The median of the
+default's all-runs iterations is the study's "iterations of stage 1".
+"""
+
+from __future__ import annotations
+
+import argparse
+import concurrent.futures as cf
+import dataclasses
+import functools
+import json
+import pathlib
+import tempfile
+
+import numpy as np
+
+import jaxhumanoid  # noqa: F401  (x64)
+from jaxhumanoid.progress import Progress
+from jaxhumanoid.strategy import solve as strat
+from jaxhumanoid.studies import run
+from jaxhumanoid.studies.spec import load_spec
+
+VARIANTS = {  # stage-1 options, scaling, factor on the strengths u_max in stage 1
+    "default": ({}, "none", 1.0),
+    "adaptive": ({"mu_strategy": "adaptive"}, "none", 1.0),
+    "physical": ({}, "physical", 1.0),
+    "adaptive+physical": ({"mu_strategy": "adaptive"}, "physical", 1.0),
+    "warm": ({"mu_init": 1e-3, "bound_push": 1e-6, "bound_frac": 1e-6}, "none", 1.0),
+    "strength x1.5": ({}, "none", 1.5),
+    "strength x2": ({}, "none", 2.0),
+}
+
+
+class _StageOneDone(Exception):
+    """Raised once stage 1 has run, to skip the later stages."""
+
+    def __init__(self, stats, attempts):
+        super().__init__("stage 1 done")
+        self.stats, self.attempts = stats, attempts
+
+
+def stage_one_record(case, variant: str) -> dict:
+    """Stage 1 of ``case`` under ``variant``: the runs' statuses and iterations and the objective."""
+    options, scaling, strength = VARIANTS[variant]
+    attempts: list = []
+    run_solver, stage_one, problem_one = strat._run_solver, strat._stage_one, strat.stage_one_problem
+
+    def stronger_problem(task, scheme, final, *a, **k):
+        body = dataclasses.replace(final.model, u_max=strength * np.asarray(final.model.u_max))
+        return problem_one(
+            task, scheme, dataclasses.replace(final, p=dataclasses.replace(final.p, model=body)), *a, **k
+        )
+
+    def recording_run(*a, **k):
+        res = run_solver(*a, **k)
+        attempts.append((res.status, int(res.iterations), bool(res.success)))
+        return res
+
+    def stopping_stage_one(*a, **k):
+        stats, _ = stage_one(*a, **k)
+        raise _StageOneDone(stats, list(attempts))
+
+    strat._run_solver, strat._stage_one = recording_run, stopping_stage_one
+    if strength != 1.0:
+        strat.stage_one_problem = stronger_problem
+    solve = run.solve
+    run.solve = functools.partial(solve, stage1_options=options or None, scaling=scaling)
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            run.solve_case(dataclasses.replace(case, save=False), pathlib.Path(tmp))
+        raise RuntimeError("the case ran without a stage 1")
+    except _StageOneDone as done:
+        st = done.stats
+        return {
+            "task": case.task,
+            "draw": case.draw,
+            "variant": variant,
+            "first_status": done.attempts[0][0],
+            "first_success": done.attempts[0][2],
+            "first_iterations": done.attempts[0][1],
+            "runs": len(done.attempts),
+            "success": bool(done.attempts[-1][2]),
+            "iterations": int(st.iterations),
+            "objective": float(st.objective),
+            "start_violation": float(st.start_violation),
+            "solve_time_s": float(st.solve_time_s),
+        }
+    finally:
+        strat._run_solver, strat._stage_one, strat.stage_one_problem = run_solver, stage_one, problem_one
+        run.solve = solve
+
+
+def summary(records: list[dict], variants: list[str]) -> dict:
+    by = {(r["task"], r["draw"], r["variant"]): r for r in records}
+    problems = sorted({(r["task"], r["draw"]) for r in records})
+    out = {}
+    for v in variants:
+        rs = [by[p + (v,)] for p in problems if p + (v,) in by]
+        same = [
+            abs(by[p + (v,)]["objective"] - by[p + ("default",)]["objective"])
+            <= 1e-6 * max(1.0, abs(by[p + ("default",)]["objective"]))
+            for p in problems
+            if p + (v,) in by and p + ("default",) in by and by[p + (v,)]["success"] and by[p + ("default",)]["success"]
+        ]
+        its = np.array([r["iterations"] for r in rs])
+        first = np.array([r["first_iterations"] for r in rs if r["first_success"]])
+        out[v] = {
+            "problems": len(rs),
+            "first_run_succeeded": sum(r["first_success"] for r in rs),
+            "succeeded": sum(r["success"] for r in rs),
+            "iterations_median": float(np.median(its)) if its.size else None,
+            "iterations_range": [int(its.min()), int(its.max())] if its.size else None,
+            "first_run_iterations_median": float(np.median(first)) if first.size else None,
+            "same_optimum_as_default": f"{sum(same)}/{len(same)}",
+            "solve_time_s_median": float(np.median([r["solve_time_s"] for r in rs])) if rs else None,
+            "start_violation_median": float(np.median([r["start_violation"] for r in rs])) if rs else None,
+            "per_task": {
+                t: {
+                    "first_run_succeeded": sum(r["first_success"] for r in rs if r["task"] == t),
+                    "succeeded": sum(r["success"] for r in rs if r["task"] == t),
+                    "problems": sum(r["task"] == t for r in rs),
+                    "iterations_median": float(np.median([r["iterations"] for r in rs if r["task"] == t])),
+                }
+                for t in sorted({r["task"] for r in rs})
+            },
+        }
+    return out
+
+
+def table(s: dict) -> str:
+    lines = [
+        "| variant | problems | first run succeeded | succeeded after fallbacks | iterations, all runs: median (range) "
+        "| iterations of a successful first run, median | same optimum as default | solve s, median |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for v, r in s.items():
+        rng = r["iterations_range"] or ["-", "-"]
+        first = r["first_run_iterations_median"]
+        lines.append(
+            f"| {v} | {r['problems']} | {r['first_run_succeeded']} | {r['succeeded']} | "
+            f"{r['iterations_median']:g} ({rng[0]}-{rng[1]}) | {'-' if first is None else f'{first:g}'} | "
+            f"{r['same_optimum_as_default']} | {r['solve_time_s_median']:.2f} |"
+        )
+    tasks = sorted({t for r in s.values() for t in r["per_task"]})
+    lines += [
+        "",
+        "| variant | " + " | ".join(f"{t}: first run / after fallbacks, median iterations" for t in tasks) + " |",
+    ]
+    lines.append("|---|" + "---|" * len(tasks))
+    for v, r in s.items():
+        cells = [
+            f"{c['first_run_succeeded']}/{c['problems']} / {c['succeeded']}/{c['problems']}, {c['iterations_median']:g}"
+            for c in (r["per_task"][t] for t in tasks)
+        ]
+        lines.append(f"| {v} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--spec", default="examples/studies/robustness.toml")
+    ap.add_argument("--tasks", nargs="*", default=None)
+    ap.add_argument("--draws", type=int, default=40)
+    ap.add_argument("--variants", nargs="*", default=list(VARIANTS), choices=list(VARIANTS))
+    ap.add_argument("--workers", type=int, default=1)
+    ap.add_argument("--out", default="results/study_stage1_options.json")
+    ap.add_argument("--md", default=None)
+    ap.add_argument("--quiet", action="store_true")
+    args = ap.parse_args()
+    if "default" not in args.variants:
+        raise SystemExit("--variants: must include 'default' (the reference of 'same optimum')")
+    spec = load_spec(args.spec)
+    cases = [
+        c
+        for c in spec.cases
+        if c.solver == "ipopt" and (c.draw or 0) < args.draws and (args.tasks is None or c.task in args.tasks)
+    ]
+    if not cases:
+        raise SystemExit(f"--tasks/--draws: no IPOPT case of {args.spec} matches")
+    jobs = [(c, v) for c in cases for v in args.variants]
+    progress = Progress(len(jobs), quiet=args.quiet)
+    records = []
+    with cf.ProcessPoolExecutor(max_workers=args.workers) as pool:
+        futures = {pool.submit(stage_one_record, c, v): (c, v) for c, v in jobs}
+        for fut in cf.as_completed(futures):
+            c, v = futures[fut]
+            r = fut.result()
+            records.append(r)
+            progress.completed(
+                f"{c.task} draw {c.draw} {v}", f"{r['first_status']}, {r['runs']} run(s), {r['iterations']} its"
+            )
+    records.sort(key=lambda r: (r["task"], r["draw"], args.variants.index(r["variant"])))
+    s = summary(records, args.variants)
+    out = pathlib.Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({"spec": args.spec, "draws": args.draws, "summary": s, "records": records}, indent=1))
+    md = table(s)
+    print(md)
+    if args.md:
+        pathlib.Path(args.md).write_text(md + "\n")
+
+
+if __name__ == "__main__":
+    main()
