@@ -30,11 +30,11 @@ import argparse
 import concurrent.futures as cf
 import dataclasses
 import functools
-import json
 import pathlib
 import tempfile
 
 import numpy as np
+from _bench import write
 
 import jaxhumanoid  # noqa: F401  (x64)
 from jaxhumanoid.progress import Progress
@@ -213,9 +213,7 @@ def main():
             )
     records.sort(key=lambda r: (r["task"], r["draw"], args.variants.index(r["variant"])))
     s = summary(records, args.variants)
-    out = pathlib.Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"spec": args.spec, "draws": args.draws, "summary": s, "records": records}, indent=1))
+    write({"spec": args.spec, "draws": args.draws, "summary": s, "records": records}, args.out)
     md = table(s)
     print(md)
     if args.md:
