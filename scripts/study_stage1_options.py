@@ -1,7 +1,7 @@
 """Study: stage 1 of 2S on the robustness study's perturbed problems, under barrier and scaling variants.
 
     OMP_NUM_THREADS=1 python scripts/study_stage1_options.py [--spec examples/studies/robustness.toml]
-        [--tasks T1 T2 T3 T4] [--draws 40] [--variants default adaptive physical adaptive+physical]
+        [--tasks T1 T2 T3 T4] [--draws 40] [--variants default adaptive ...]
         [--workers 2] [--out results/study_stage1_options.json] [--md results/study_stage1_options.md] [--quiet]
 
 Each problem is a draw of the study spec (weights, start posture, N, T drawn exactly as ``jaxhumanoid
@@ -18,9 +18,10 @@ sweep`` draws them: ``studies.run.solve_case``), and only its stage 1 runs: the 
     strength x1.5, x2   the torque box of stage 1 only widened to 1.5 or 2 times the strengths (stage 1 is
                         a warm start: the final problem keeps the strengths)
 
-Per variant: the largest constraint violation of stage 1's start, the first run's success and iterations, the stage's success after the fallbacks and
-its iterations over all runs (what the study counts), the objective, and per problem whether the
-variant ends at the default's optimum (objectives within 1e-6 relative). The median of the
+Per variant: the largest constraint violation of stage 1's start, the first run's success and
+iterations, the stage's success after the fallbacks and its iterations over all runs (what the
+study counts), the objective, and per problem whether the variant ends at the default's optimum
+(objectives within ``compare.OBJ_RTOL``). The median of the
 default's all-runs iterations is the study's "iterations of stage 1".
 """
 
@@ -40,6 +41,7 @@ import jaxhumanoid  # noqa: F401  (x64)
 from jaxhumanoid.progress import Progress
 from jaxhumanoid.strategy import solve as strat
 from jaxhumanoid.studies import run
+from jaxhumanoid.studies.compare import OBJ_RTOL
 from jaxhumanoid.studies.spec import load_spec
 
 VARIANTS = {  # stage-1 options, scaling, factor on the strengths u_max in stage 1
@@ -56,16 +58,17 @@ VARIANTS = {  # stage-1 options, scaling, factor on the strengths u_max in stage
 class _StageOneDone(Exception):
     """Raised once stage 1 has run, to skip the later stages."""
 
-    def __init__(self, stats, attempts):
+    def __init__(self, stats):
         super().__init__("stage 1 done")
-        self.stats, self.attempts = stats, attempts
+        self.stats = stats
 
 
 def stage_one_record(case, variant: str) -> dict:
-    """Stage 1 of ``case`` under ``variant``: the runs' statuses and iterations and the objective."""
+    """Stage 1 of ``case`` under ``variant``: its runs' iterations, status and objective. A fallback
+    runs only after a failed run, so the first run succeeded exactly when there was one run and
+    the stage succeeded."""
     options, scaling, strength = VARIANTS[variant]
-    attempts: list = []
-    run_solver, stage_one, problem_one = strat._run_solver, strat._stage_one, strat.stage_one_problem
+    stage_one, problem_one, solve = strat._stage_one, strat.stage_one_problem, run.solve
 
     def stronger_problem(task, scheme, final, *a, **k):
         body = dataclasses.replace(final.model, u_max=strength * np.asarray(final.model.u_max))
@@ -73,19 +76,12 @@ def stage_one_record(case, variant: str) -> dict:
             task, scheme, dataclasses.replace(final, p=dataclasses.replace(final.p, model=body)), *a, **k
         )
 
-    def recording_run(*a, **k):
-        res = run_solver(*a, **k)
-        attempts.append((res.status, int(res.iterations), bool(res.success)))
-        return res
-
     def stopping_stage_one(*a, **k):
-        stats, _ = stage_one(*a, **k)
-        raise _StageOneDone(stats, list(attempts))
+        raise _StageOneDone(stage_one(*a, **k)[0])
 
-    strat._run_solver, strat._stage_one = recording_run, stopping_stage_one
+    strat._stage_one = stopping_stage_one
     if strength != 1.0:
         strat.stage_one_problem = stronger_problem
-    solve = run.solve
     run.solve = functools.partial(solve, stage1_options=options or None, scaling=scaling)
     try:
         with tempfile.TemporaryDirectory() as tmp:
@@ -97,54 +93,57 @@ def stage_one_record(case, variant: str) -> dict:
             "task": case.task,
             "draw": case.draw,
             "variant": variant,
-            "first_status": done.attempts[0][0],
-            "first_success": done.attempts[0][2],
-            "first_iterations": done.attempts[0][1],
-            "runs": len(done.attempts),
-            "success": bool(done.attempts[-1][2]),
+            "status": st.status,
+            "first_success": bool(st.success and st.attempts == 1),
+            "first_iterations": int(st.runs[0]),
+            "runs": int(st.attempts),
+            "success": bool(st.success),
             "iterations": int(st.iterations),
             "objective": float(st.objective),
             "start_violation": float(st.start_violation),
             "solve_time_s": float(st.solve_time_s),
         }
     finally:
-        strat._run_solver, strat._stage_one, strat.stage_one_problem = run_solver, stage_one, problem_one
-        run.solve = solve
+        strat._stage_one, strat.stage_one_problem, run.solve = stage_one, problem_one, solve
+
+
+def _same_objective(a: dict, b: dict) -> bool:
+    """Both succeeded at objectives within ``compare.OBJ_RTOL`` (relative, as ``compare.agreement``;
+    stage 1's trajectories are not kept, so the objective alone decides)."""
+    scale = max(abs(a["objective"]), abs(b["objective"]), 1e-300)
+    return a["success"] and b["success"] and abs(a["objective"] - b["objective"]) / scale <= OBJ_RTOL
+
+
+def _counts(rs: list[dict]) -> dict:
+    its = np.array([r["iterations"] for r in rs])
+    return {
+        "problems": len(rs),
+        "first_run_succeeded": sum(r["first_success"] for r in rs),
+        "succeeded": sum(r["success"] for r in rs),
+        "iterations_median": float(np.median(its)),
+        "iterations_range": [int(its.min()), int(its.max())],
+    }
 
 
 def summary(records: list[dict], variants: list[str]) -> dict:
+    """Per variant: ``_counts`` over all problems and per task, the median iterations of a
+    successful first run, solve time and start violation, and on how many problems that both
+    solved the variant ends at the default's optimum."""
     by = {(r["task"], r["draw"], r["variant"]): r for r in records}
     problems = sorted({(r["task"], r["draw"]) for r in records})
     out = {}
     for v in variants:
         rs = [by[p + (v,)] for p in problems if p + (v,) in by]
-        same = [
-            abs(by[p + (v,)]["objective"] - by[p + ("default",)]["objective"])
-            <= 1e-6 * max(1.0, abs(by[p + ("default",)]["objective"]))
-            for p in problems
-            if p + (v,) in by and p + ("default",) in by and by[p + (v,)]["success"] and by[p + ("default",)]["success"]
-        ]
-        its = np.array([r["iterations"] for r in rs])
-        first = np.array([r["first_iterations"] for r in rs if r["first_success"]])
+        both = [(by[p + (v,)], by[p + ("default",)]) for p in problems if p + (v,) in by and p + ("default",) in by]
+        solved = [(a, b) for a, b in both if a["success"] and b["success"]]
+        first = [r["first_iterations"] for r in rs if r["first_success"]]
         out[v] = {
-            "problems": len(rs),
-            "first_run_succeeded": sum(r["first_success"] for r in rs),
-            "succeeded": sum(r["success"] for r in rs),
-            "iterations_median": float(np.median(its)) if its.size else None,
-            "iterations_range": [int(its.min()), int(its.max())] if its.size else None,
-            "first_run_iterations_median": float(np.median(first)) if first.size else None,
-            "same_optimum_as_default": f"{sum(same)}/{len(same)}",
-            "solve_time_s_median": float(np.median([r["solve_time_s"] for r in rs])) if rs else None,
-            "start_violation_median": float(np.median([r["start_violation"] for r in rs])) if rs else None,
-            "per_task": {
-                t: {
-                    "first_run_succeeded": sum(r["first_success"] for r in rs if r["task"] == t),
-                    "succeeded": sum(r["success"] for r in rs if r["task"] == t),
-                    "problems": sum(r["task"] == t for r in rs),
-                    "iterations_median": float(np.median([r["iterations"] for r in rs if r["task"] == t])),
-                }
-                for t in sorted({r["task"] for r in rs})
-            },
+            **_counts(rs),
+            "first_run_iterations_median": float(np.median(first)) if first else None,
+            "same_optimum_as_default": f"{sum(_same_objective(a, b) for a, b in solved)}/{len(solved)}",
+            "solve_time_s_median": float(np.median([r["solve_time_s"] for r in rs])),
+            "start_violation_median": float(np.median([r["start_violation"] for r in rs])),
+            "per_task": {t: _counts([r for r in rs if r["task"] == t]) for t in sorted({r["task"] for r in rs})},
         }
     return out
 
@@ -156,7 +155,7 @@ def table(s: dict) -> str:
         "|---|---|---|---|---|---|---|---|",
     ]
     for v, r in s.items():
-        rng = r["iterations_range"] or ["-", "-"]
+        rng = r["iterations_range"]
         first = r["first_run_iterations_median"]
         lines.append(
             f"| {v} | {r['problems']} | {r['first_run_succeeded']} | {r['succeeded']} | "
@@ -209,7 +208,7 @@ def main():
             r = fut.result()
             records.append(r)
             progress.completed(
-                f"{c.task} draw {c.draw} {v}", f"{r['first_status']}, {r['runs']} run(s), {r['iterations']} its"
+                f"{c.task} draw {c.draw} {v}", f"{r['status']}, {r['runs']} run(s), {r['iterations']} its"
             )
     records.sort(key=lambda r: (r["task"], r["draw"], args.variants.index(r["variant"])))
     s = summary(records, args.variants)
