@@ -3,6 +3,7 @@
     python scripts/study_tracking.py [--tasks T1 T2 T3 T4 | examples/paper/T1.toml ...] [--trials 100]
         [--seed 0] [--plans DIR] [--out docs/tracking.json] [--lqr Q_RAD QD_RAD_S U_NM [FOOT_N]]
         [--foot-margin LOAD FRICTION COP] [--N 100] [--qp-filter [LOAD FRICTION COP]] [--defects]
+        [--ablation [mass_length contact friction start_rad torque_noise_Nm]]
 
 The tables are copied into docs/tracking.md, which explains them.
 
@@ -16,13 +17,17 @@ the given margin), as one batch each. Writes the
 JSON (rates, failure reasons, timings) and a markdown table next to it (``tracking_table.md``); rows of tasks
 not run this time are kept from an existing ``--out``. ``--defects`` instead measures how far each
 plan is from the simulator interval by interval (``tracking.plan.interval_defects``) and adds it to
-the rows (and a table to ``tracking_defects.md``).
+the rows (and a table to ``tracking_defects.md``). ``--ablation`` runs the trials once per named
+component of the perturbation (default all five), that component at its default size and every
+other one zero, one row each, after a row with all of them on the same plan: which uncertainty the plan and the
+controller do not survive.
 """
 
 from __future__ import annotations
 
 import argparse
 import collections
+import dataclasses
 import json
 import pathlib
 import time
@@ -32,7 +37,7 @@ import numpy as np
 import jaxhumanoid as jh
 from jaxhumanoid.model.foot import FootMargin
 from jaxhumanoid.progress import Progress
-from jaxhumanoid.tracking import LQRWeights, track
+from jaxhumanoid.tracking import LQRWeights, Perturbation, track
 from jaxhumanoid.tracking.filter import SafetyFilter
 from jaxhumanoid.tracking.plan import interval_defects
 
@@ -85,6 +90,7 @@ def summary(res, wall_s: float, name: str, objective: float) -> dict:
         "task": name,
         "plan_objective": objective,
         "trials": res.trials,
+        "perturbation": res.perturbation,
         "lqr_weights": res.weights,
         "rejected_draws": res.rejected_draws,
         "open_loop_success_rate": res.open_loop_success_rate,
@@ -138,6 +144,21 @@ def markdown(rows) -> str:
             f"| {r['trials_per_s']:.2f} |"
         )
     return "\n".join(lines) + "\n"
+
+
+COMPONENTS = tuple(f.name for f in dataclasses.fields(Perturbation))
+
+
+def perturbations(ablation) -> list[tuple[str, Perturbation]]:
+    """(row suffix, perturbation) pairs: the default perturbation, or with ``ablation`` (component
+    names) the default one and then each named component alone at its default size."""
+    if ablation is None:
+        return [("", Perturbation())]
+    full = Perturbation()
+    return [(", all", full)] + [
+        (f", {name} only", dataclasses.replace(Perturbation.zero(), **{name: getattr(full, name)}))
+        for name in ablation or COMPONENTS
+    ]
 
 
 DEFECT_SUBSTEPS = (1, 10, 40)
@@ -210,6 +231,14 @@ def main() -> None:
     parser.add_argument(
         "--defects", action="store_true", help="instead: the plans' interval defects against the simulator only"
     )
+    parser.add_argument(
+        "--ablation",
+        nargs="*",
+        choices=COMPONENTS,
+        default=None,
+        metavar="COMPONENT",
+        help=f"one row per perturbation component alone (default all of {', '.join(COMPONENTS)})",
+    )
     args = parser.parse_args()
     out = pathlib.Path(args.out)
     rows = json.loads(out.read_text()) if out.is_file() else []  # rows of other tasks are kept
@@ -224,23 +253,31 @@ def main() -> None:
     safety = None if args.qp_filter is None else SafetyFilter(*args.qp_filter)
     for task in args.tasks:
         src = plan(task, pathlib.Path(args.plans), args.foot_margin, args.N)
-        name = label(task, args.foot_margin, args.N)
-        t0 = time.perf_counter()
-        res = track(
-            src,
-            trials=args.trials,
-            seed=args.seed,
-            weights=weights,
-            progress=Progress(4 + (safety is not None)),
-            safety=safety,
-        )
-        row = summary(res, time.perf_counter() - t0, name, jh.Solution.load(src).objective)
-        rows = sorted([r for r in rows if r["task"] != name] + [row], key=lambda r: r["task"])
-        print(markdown([row]) + (qp_markdown([row]) if safety is not None else ""), flush=True)
-        out.write_text(json.dumps(rows, indent=2) + "\n")
-        out.with_name(out.stem + "_table.md").write_text(markdown(rows))
-        if any(r.get("qp_filter_success_rate") is not None for r in rows):
-            out.with_name(out.stem + "_qp_table.md").write_text(qp_markdown(rows))
+        for suffix, perturbation in perturbations(args.ablation):
+            rows = run_row(
+                args, src, label(task, args.foot_margin, args.N) + suffix, perturbation, weights, safety, rows
+            )
+            out.write_text(json.dumps(rows, indent=2) + "\n")
+            out.with_name(out.stem + "_table.md").write_text(markdown(rows))
+            if any(r.get("qp_filter_success_rate") is not None for r in rows):
+                out.with_name(out.stem + "_qp_table.md").write_text(qp_markdown(rows))
+
+
+def run_row(args, src, name: str, perturbation, weights, safety, rows) -> list[dict]:
+    """Track the plan in ``src`` under ``perturbation``; ``rows`` with this row (re)placed."""
+    t0 = time.perf_counter()
+    res = track(
+        src,
+        trials=args.trials,
+        seed=args.seed,
+        perturbation=perturbation,
+        weights=weights,
+        progress=Progress(4 + (safety is not None)),
+        safety=safety,
+    )
+    row = summary(res, time.perf_counter() - t0, name, jh.Solution.load(src).objective)
+    print(markdown([row]) + (qp_markdown([row]) if safety is not None else ""), flush=True)
+    return sorted([r for r in rows if r["task"] != name] + [row], key=lambda r: r["task"])
 
 
 if __name__ == "__main__":

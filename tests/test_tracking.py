@@ -33,6 +33,7 @@ from jaxhumanoid.tracking.montecarlo import (
     Draw,
     _gains,
     _seat,
+    draw_trials,
     perturbed_plant,
     start_blend,
 )
@@ -222,6 +223,21 @@ def test_a_lying_start_is_seated_nearby_for_a_longer_body_and_a_stiffer_ground()
     seated = margins(trial.model, q, task.active, contact=trial.contact, foot=FOOT)
     planned = margins(BODY, task.start, task.active, contact=LAW, foot=FOOT)
     np.testing.assert_allclose(seated.forces[:, 1], 1.05 * planned.forces[:, 1], rtol=1e-6)
+
+
+def test_a_component_left_out_leaves_the_other_draws_unchanged():
+    """Each component draws from the generator whatever its size, so an ablation (one component
+    alone) sees the same draws of that component as the full perturbation; a zero component draws
+    factors of exactly 1. Mutation: masses and lengths drawn apart (not one shared factor)."""
+    q0, active = tasks.TASKS["T4"].start, tasks.TASKS["T4"].active
+    full, _ = draw_trials(PLANT, q0, active, 4, Perturbation(), seed=3)
+    mass, _ = draw_trials(PLANT, q0, active, 4, Perturbation(0.1, 0.0, 0.0, 0.0, 0.0, 0.0), seed=3)
+    length, _ = draw_trials(PLANT, q0, active, 4, Perturbation(0.0, 0.1, 0.0, 0.0, 0.0, 0.0), seed=3)
+    for f, m, ell in zip(full[1:], mass[1:], length[1:]):
+        assert m.mass_scale == f.mass_scale and ell.length_scale == f.length_scale
+        assert m.length_scale == [1.0] * 5 and ell.mass_scale == [1.0] * 5
+        assert m.kappa_scale == m.mu_scale == ell.f0_scale == 1.0 and not np.any(m.start_offset)
+        assert f.mass_scale != f.length_scale
 
 
 def test_a_large_perturbation_fails(stand):

@@ -1,8 +1,8 @@
 """Monte-Carlo execution of a plan: perturbed bodies, laws and starts, open loop against TVLQR
 (and, with ``track(safety=...)``, TVLQR through the steady-foot QP filter of ``tracking.filter``).
 
-Each trial draws (uniformly, from one seeded generator) link masses and lengths scaled by
-1 +- ``mass_length`` (lengths scale a and c together; inertia scales with mass x length^2),
+Each trial draws (uniformly, from one seeded generator) link masses scaled by 1 +- ``mass`` and
+lengths by 1 +- ``length`` (lengths scale a and c together; inertia scales with mass x length^2),
 kappa and f0 scaled by 1 +- ``contact``, mu by 1 +- ``friction``, a start posture moved by up to
 ``start_rad`` per joint and then put back into static equilibrium for the *perturbed* body and law
 (``_seat``: kept when it already keeps the foot steady with the small margins of ``START_SPEC``,
@@ -54,7 +54,8 @@ class Perturbation:
     """Half-widths of the uniform draws (fractions), the start offset (rad) and the torque noise
     (N m, standard deviation per joint, held over each plan interval). ``Perturbation.zero()`` draws nothing."""
 
-    mass_length: float = 0.10
+    mass: float = 0.10
+    length: float = 0.10
     contact: float = 0.50
     friction: float = 0.30
     start_rad: float = 0.02
@@ -62,13 +63,13 @@ class Perturbation:
 
     def __post_init__(self):
         check_number_fields(self, strict=False)
-        for name in ("mass_length", "contact", "friction"):
+        for name in ("mass", "length", "contact", "friction"):
             if getattr(self, name) >= 1:
                 raise ValueError(f"Perturbation.{name}: expected a fraction below 1, got {getattr(self, name)!r}")
 
     @classmethod
     def zero(cls) -> Perturbation:
-        return cls(0.0, 0.0, 0.0, 0.0, 0.0)
+        return cls(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -153,7 +154,7 @@ def draw_trials(plant: Plant, q_start, active, trials: int, perturbation: Pertur
     while len(out) < trials:
         w = 0.0 if not out else 1.0
         u = lambda k, h: np.ones(k) + w * h * rng.uniform(-1, 1, k)  # noqa: E731
-        sm, sl, (sk, sf), (smu,) = u(n, p.mass_length), u(n, p.mass_length), u(2, p.contact), u(1, p.friction)
+        sm, sl, (sk, sf), (smu,) = u(n, p.mass), u(n, p.length), u(2, p.contact), u(1, p.friction)
         offset = w * p.start_rad * rng.uniform(-1, 1, n)
         d = Draw(sm.tolist(), sl.tolist(), float(sk), float(sf), float(smu), offset.tolist(), [], False)
         try:
