@@ -3,7 +3,7 @@
     python scripts/study_tracking.py [--tasks T1 T2 T3 T4 | examples/paper/T1.toml ...] [--trials 100]
         [--seed 0] [--plans DIR] [--out docs/tracking.json] [--lqr Q_RAD QD_RAD_S U_NM [FOOT_N]]
         [--foot-margin LOAD FRICTION COP] [--N 100] [--qp-filter [LOAD FRICTION COP]] [--defects]
-        [--ablation [mass_length contact friction start_rad torque_noise_Nm]]
+        [--ablation [mass length contact friction start_rad torque_noise_Nm]]
 
 The tables are copied into docs/tracking.md, which explains them.
 
@@ -18,9 +18,9 @@ JSON (rates, failure reasons, timings) and a markdown table next to it (``tracki
 not run this time are kept from an existing ``--out``. ``--defects`` instead measures how far each
 plan is from the simulator interval by interval (``tracking.plan.interval_defects``) and adds it to
 the rows (and a table to ``tracking_defects.md``). ``--ablation`` runs the trials once per named
-component of the perturbation (default all five), that component at its default size and every
-other one zero, one row each, after a row with all of them on the same plan: which uncertainty the plan and the
-controller do not survive.
+component of the perturbation (default all six), that component at its default size and every
+other one zero, one row each, after a row with all of them on the same plan and the same draws:
+which uncertainty the plan and the controller do not survive.
 """
 
 from __future__ import annotations
