@@ -1,4 +1,4 @@
-"""Shared timing helper for the benchmark scripts: medians of repeated runs, JSON output."""
+"""Shared helpers of the benchmark and study scripts: medians of repeated runs, JSON and table output."""
 
 from __future__ import annotations
 
@@ -47,3 +47,10 @@ def write(results: dict, path: str) -> None:
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(results, indent=2) + "\n")
     print(f"wrote {out}")
+
+
+def show_table(text: str, path: str | None) -> None:
+    """Print a markdown table and, with ``path``, write it there too."""
+    print(text)
+    if path:
+        pathlib.Path(path).write_text(text + "\n")

@@ -23,6 +23,7 @@ import platform
 import time
 
 import numpy as np
+from _bench import show_table
 
 import jaxhumanoid as jh
 from jaxhumanoid.strategy.taskfile import solve_kwargs
@@ -99,10 +100,7 @@ def main() -> None:
         out = pathlib.Path(args.out)
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(json.dumps(results, indent=2) + "\n")
-    md = table(results)
-    print(md)
-    if args.md:
-        pathlib.Path(args.md).write_text(md + "\n")
+    show_table(table(results), args.md)
 
 
 if __name__ == "__main__":

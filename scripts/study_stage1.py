@@ -20,6 +20,7 @@ import json
 import pathlib
 
 import numpy as np
+from _bench import show_table
 
 import jaxhumanoid as jh
 from jaxhumanoid.progress import Progress
@@ -126,10 +127,7 @@ def main() -> None:
     out = pathlib.Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({"args": vars(args), "runs": runs}, indent=2) + "\n")
-    text = table(runs)
-    if args.md:
-        pathlib.Path(args.md).write_text(text + "\n")
-    print(text)
+    show_table(table(runs), args.md)
 
 
 if __name__ == "__main__":

@@ -35,7 +35,7 @@ import pathlib
 import tempfile
 
 import numpy as np
-from _bench import write
+from _bench import show_table, write
 
 import jaxhumanoid  # noqa: F401  (x64)
 from jaxhumanoid.progress import Progress
@@ -213,10 +213,7 @@ def main():
     records.sort(key=lambda r: (r["task"], r["draw"], args.variants.index(r["variant"])))
     s = summary(records, args.variants)
     write({"spec": args.spec, "draws": args.draws, "summary": s, "records": records}, args.out)
-    md = table(s)
-    print(md)
-    if args.md:
-        pathlib.Path(args.md).write_text(md + "\n")
+    show_table(table(s), args.md)
 
 
 if __name__ == "__main__":
