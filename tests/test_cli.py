@@ -61,6 +61,11 @@ def test_bad_input_is_reported_before_any_work(capsys, tmp_path):
         (["solve", "--solver", "casadi", "--ipopt-option", "mu_strategy=fast", "--out", str(tmp_path)], "mu_strategy"),
         (["animate", str(tmp_path / "missing")], "dir"),
         (["animate", str(tmp_path)], "solution.npz"),
+        (["track", str(tmp_path), "--perturb", "mass"], "--perturb"),
+        (["track", str(tmp_path), "--perturb", "weight=0.1"], "mass, length, contact"),
+        (["track", str(tmp_path), "--perturb", "mass=2"], "Perturbation.mass"),
+        (["track", str(tmp_path), "--lqr", "q_rad=small"], "--lqr"),
+        (["track", str(tmp_path), "--lqr", "u_Nm=0"], "LQRWeights.u_Nm"),
     ]
     for argv, field in cases:
         assert main(["--no-cache", *argv]) == 2, argv

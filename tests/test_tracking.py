@@ -9,6 +9,7 @@ transcription error of a solved plan (which docs/tracking.md measures)."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import jax
@@ -288,6 +289,16 @@ def test_cli_writes_tracking_json_and_figures(stand, default_run, tmp_path, caps
     assert (tmp_path / "t" / "tracking.png").stat().st_size > 0 and (tmp_path / "t" / "tracking.gif").stat().st_size > 0
     assert "closed loop (TVLQR) 100%" in capsys.readouterr().out
     assert main(["--no-cache", "track", str(tmp_path / "nowhere")]) == 2
+
+
+def test_cli_passes_the_perturbation_and_weights_it_is_given(stand, tmp_path):
+    stand.save(tmp_path / "plan")
+    argv = ["--no-cache", "track", str(tmp_path / "plan"), "--trials", "2", "--no-figures", "--quiet"]
+    assert main([*argv, "--perturb", "length=0", "torque_noise_Nm=12.5", "--lqr", "q_rad=0.05"]) == 0
+    data = json.loads((tmp_path / "plan" / "tracking.json").read_text())
+    assert data["perturbation"] == {**dataclasses.asdict(Perturbation()), "length": 0.0, "torque_noise_Nm": 12.5}
+    assert data["weights"] == {**dataclasses.asdict(LQRWeights()), "q_rad": 0.05}
+    assert data["records"][1]["perturbation"]["length_scale"] == [1.0] * stand.n_links
 
 
 def test_figure_has_a_panel_per_joint_and_the_foot(default_run, stand):

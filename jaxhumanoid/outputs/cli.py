@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import pathlib
 import signal
@@ -31,6 +32,7 @@ from jaxhumanoid.strategy.taskfile import load_task_file, solve_kwargs, task_fil
 from jaxhumanoid.studies import ENGINES, sweep
 from jaxhumanoid.tracking import montecarlo
 from jaxhumanoid.tracking.filter import SafetyFilter
+from jaxhumanoid.tracking.lqr import LQRWeights
 from jaxhumanoid.validation import checks
 
 # Table II of the paper: (iterations, seconds) per task and scheme; None = failed.
@@ -52,12 +54,12 @@ PAPER_TABLE2: dict[str, dict[str, tuple[str, str] | None]] = {
 }
 
 
-def parse_solver_options(pairs) -> dict:
-    """``--ipopt-option key=value`` pairs, numbers parsed."""
+def parse_solver_options(pairs, flag: str = "--ipopt-option") -> dict:
+    """``flag key=value`` pairs, numbers parsed."""
     opts = {}
     for pair in pairs or []:
         if "=" not in pair:
-            raise ValueError(f"--ipopt-option: expected KEY=VALUE, got {pair!r}")
+            raise ValueError(f"{flag}: expected KEY=VALUE, got {pair!r}")
         key, val = pair.split("=", 1)
         for cast in (int, float):
             try:
@@ -67,6 +69,19 @@ def parse_solver_options(pairs) -> dict:
                 continue
         opts[key.strip()] = val
     return opts
+
+
+def with_overrides(default, pairs, flag: str):
+    """The dataclass instance ``default`` with the fields named by ``flag key=value`` pairs replaced
+    (each value a number; the dataclass checks its range)."""
+    opts = parse_solver_options(pairs, flag)
+    fields = [f.name for f in dataclasses.fields(default)]
+    for key, val in opts.items():
+        if key not in fields:
+            raise ValueError(f"{flag}: unknown key {key!r}; expected one of {', '.join(fields)}")
+        if isinstance(val, str):
+            raise ValueError(f"{flag}: {key} expects a number, got {val!r}")
+    return dataclasses.replace(default, **opts)
 
 
 def checked_options(args) -> dict:
@@ -255,12 +270,21 @@ def cmd_animate(args) -> int:
 
 
 def cmd_track(args) -> int:
+    perturbation = with_overrides(montecarlo.Perturbation(), args.perturb, "--perturb")
+    weights = with_overrides(LQRWeights(), args.lqr, "--lqr")
     sol = montecarlo.as_solution(args.dir)
     out = writable_dir(args.out or args.dir)
     safety = SafetyFilter() if args.controller == "qp" else None
     progress = Progress(4 + (safety is not None) + (0 if args.no_figures else 1), quiet=args.quiet)
     res = montecarlo.track(
-        sol, trials=args.trials, seed=args.seed, substeps=args.substeps, progress=progress, safety=safety
+        sol,
+        trials=args.trials,
+        seed=args.seed,
+        substeps=args.substeps,
+        perturbation=perturbation,
+        weights=weights,
+        progress=progress,
+        safety=safety,
     )
     path = res.save(out)
     if not args.no_figures:
@@ -432,6 +456,19 @@ def build_parser() -> argparse.ArgumentParser:
         choices=("tvlqr", "qp"),
         default="tvlqr",
         help="tvlqr: open loop and TVLQR (default); qp: also TVLQR through the steady-foot QP filter",
+    )
+    p.add_argument(
+        "--perturb",
+        nargs="+",
+        metavar="KEY=VALUE",
+        help="half-widths of the trials' draws, the others as default: mass, length, contact, friction (fractions), "
+        "start_rad (rad), torque_noise_Nm (N m); e.g. --perturb length=0 torque_noise_Nm=0",
+    )
+    p.add_argument(
+        "--lqr",
+        nargs="+",
+        metavar="KEY=VALUE",
+        help="TVLQR's acceptable deviations, the others as default: q_rad, qd_rad_s, u_Nm, foot_N, terminal_s",
     )
     p.add_argument("--out", default=None, help="where tracking.json, .png and .gif go (default DIR)")
     p.add_argument("--no-figures", action="store_true", help="write tracking.json only")
