@@ -25,7 +25,7 @@ from jaxhumanoid.studies.compare import problem_agreement
 from jaxhumanoid.studies.engines import plan_queues
 from jaxhumanoid.studies.run import perturbed_contact, perturbed_start, perturbed_weights
 from jaxhumanoid.studies.sweep import select_cases
-from jaxhumanoid.studies.table import finished_ids, recovery
+from jaxhumanoid.studies.table import Table, finished_ids, recovery
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SPECS = [ROOT / "examples" / "sweep_small.toml", *sorted((ROOT / "examples" / "studies").glob("*.toml"))]
@@ -153,6 +153,18 @@ def test_resume_skips_finished_cases_and_retries_failed_ones_on_request():
     rows = [{"id": "a", "success": False}, {"id": "b", "success": True}, {"id": "a", "success": True}]
     assert finished_ids(rows) == {"a", "b"}
     assert finished_ids(rows[:2], retry_failed=True) == {"b"}
+
+
+def test_ids_that_look_like_numbers_read_back_as_text(tmp_path):
+    """A hex id such as 67257e895274 parses as a float (inf) and 123456789012 as an int: read
+    back as numbers, those cases would never count as finished and a resume would re-run them."""
+    ids = ["67257e895274", "123456789012", "0a1b2c3d4e5f"]
+    table = Table(tmp_path / "cases.csv", ["id", "problem", "success", "objective"])
+    for i in ids:
+        table.append({"id": i, "problem": i, "success": True, "objective": 1.5})
+    rows = read_table(tmp_path / "cases.csv")
+    assert [r["id"] for r in rows] == ids and [r["problem"] for r in rows] == ids
+    assert finished_ids(rows) == set(ids) and rows[0]["objective"] == 1.5 and rows[0]["success"] is True
 
 
 def test_recovery_rate_and_best_start():

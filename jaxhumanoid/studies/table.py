@@ -34,6 +34,9 @@ RESULT_COLUMNS = (
     "start_moved", "redraws", "path", "worker", "warnings",
 )  # fmt: skip
 INVERSE_COLUMNS = ("loss_initial", "loss_final", "max_rel_weight_error", "max_abs_q_error_rad", "w_recovered")
+# read back as text whatever they look like: a hex id such as "67257e895274" or "123456789012"
+# also reads as a number, and then no longer matches its case (resume would re-run it forever)
+TEXT_COLUMNS = ("id", "problem", "kind", "task", "scheme", "solver", "method", "status", "path", "worker")
 
 
 def columns(spec: Spec) -> list[str]:
@@ -65,12 +68,13 @@ def _value(text: str) -> Any:
 
 
 def read_table(path) -> list[dict[str, Any]]:
-    """Every row of a written table, values converted back (``_value``); [] when absent."""
+    """Every row of a written table, values converted back (``_value``; ``TEXT_COLUMNS`` stay
+    text); [] when absent."""
     path = pathlib.Path(path)
     if not path.is_file():
         return []
     with path.open(newline="") as fh:
-        return [{k: _value(v) for k, v in row.items()} for row in csv.DictReader(fh)]
+        return [{k: v if k in TEXT_COLUMNS else _value(v) for k, v in row.items()} for row in csv.DictReader(fh)]
 
 
 class Table:
