@@ -27,7 +27,7 @@ from _bench import write
 
 import jaxhumanoid  # noqa: F401
 from jaxhumanoid.ocp.tasks import get_task
-from jaxhumanoid.outputs.cli import parse_solver_options
+from jaxhumanoid.outputs.cli import parse_pairs
 from jaxhumanoid.strategy import solve as strat
 from jaxhumanoid.studies.compare import Outcome, agreement
 
@@ -67,7 +67,7 @@ def main():
     args = ap.parse_args()
     if args.samples < 1:
         ap.error("--samples: expected at least 1")
-    options = parse_solver_options(args.ipopt_option)
+    options = parse_pairs(args.ipopt_option)
     results = {}
     for task in args.tasks:
         runs = []

@@ -54,8 +54,8 @@ PAPER_TABLE2: dict[str, dict[str, tuple[str, str] | None]] = {
 }
 
 
-def parse_solver_options(pairs, flag: str = "--ipopt-option") -> dict:
-    """``flag key=value`` pairs, numbers parsed."""
+def parse_pairs(pairs, flag: str = "--ipopt-option") -> dict:
+    """``flag key=value`` pairs (``--ipopt-option``, ``--perturb``, ``--lqr``) as a dict, numbers parsed."""
     opts = {}
     for pair in pairs or []:
         if "=" not in pair:
@@ -74,7 +74,7 @@ def parse_solver_options(pairs, flag: str = "--ipopt-option") -> dict:
 def with_overrides(default, pairs, flag: str):
     """The dataclass instance ``default`` with the fields named by ``flag key=value`` pairs replaced
     (each value a number; the dataclass checks its range)."""
-    opts = parse_solver_options(pairs, flag)
+    opts = parse_pairs(pairs, flag)
     fields = [f.name for f in dataclasses.fields(default)]
     for key, val in opts.items():
         if key not in fields:
@@ -87,7 +87,7 @@ def with_overrides(default, pairs, flag: str):
 def checked_options(args) -> dict:
     """The ``--ipopt-option`` pairs, checked by IPOPT itself for the IPOPT-based solvers before
     any problem is built (the own IPM checks its options when it builds them)."""
-    opts = parse_solver_options(args.ipopt_option)
+    opts = parse_pairs(args.ipopt_option)
     if args.solver in ("ipopt", "casadi"):
         ipopt_capi.check_options(opts)
     return opts
