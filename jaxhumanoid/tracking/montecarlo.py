@@ -69,7 +69,7 @@ class Perturbation:
 
     @classmethod
     def zero(cls) -> Perturbation:
-        return cls(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        return cls(**{f.name: 0.0 for f in dataclasses.fields(cls)})
 
 
 @dataclasses.dataclass(frozen=True)
