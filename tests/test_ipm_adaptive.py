@@ -41,8 +41,8 @@ def one_dim():
     bounds = Bounds(np.ones(1), np.zeros(1), np.full(1, np.inf), np.zeros(0), np.zeros(0))
     o = make_options({"mu_strategy": "adaptive", "nlp_scaling_method": "none", "bound_relax_factor": 0.0})
     ctx = make_context(nlp, o)
-    P, x0 = make_prob(ctx, bounds.x0, bounds.xl, bounds.xu, bounds.gl, bounds.gu, None)
-    return ctx, P, initial_state(ctx, P, x0)
+    P, x, raw = make_prob(ctx, bounds.x0, bounds.xl, bounds.xu, bounds.gl, bounds.gu, None)
+    return ctx, P, initial_state(ctx, P, x, raw)
 
 
 def quality_1d(sigma, tau=0.99):

@@ -249,8 +249,8 @@ def shifted():
         "resto_shift", 2, 2, lambda x, p: 0.5 * jnp.sum(x**2), lambda x, p: jnp.array([x[0] + 1.0, x[1] - 2.0])
     )
     ctx = make_context(nlp, O)
-    P, x0 = make_prob(ctx, jnp.zeros(2), [-INF] * 2, [INF] * 2, [0.0, 0.0], [0.0, 0.0], None)
-    return ctx, P, initial_state(ctx, P, x0)
+    P, x, raw = make_prob(ctx, jnp.zeros(2), [-INF] * 2, [INF] * 2, [0.0, 0.0], [0.0, 0.0], None)
+    return ctx, P, initial_state(ctx, P, x, raw)
 
 
 def test_restoration_entry_initialises_p_n_by_ipopts_formula(shifted):

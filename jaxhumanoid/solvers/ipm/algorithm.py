@@ -30,7 +30,7 @@ from jaxhumanoid.solvers.ipm.direction import Newton, kkt_factor, newton_step, s
 from jaxhumanoid.solvers.ipm.filter import filter_add, filter_reset
 from jaxhumanoid.solvers.ipm.linesearch import LineSearch, line_search
 from jaxhumanoid.solvers.ipm.options import IPMOptions, make_options
-from jaxhumanoid.solvers.ipm.problem import Context, derivs, evaluate, make_context, make_prob, push, solution, theta_of
+from jaxhumanoid.solvers.ipm.problem import Context, derivs, make_context, make_prob, push, solution, theta_of
 from jaxhumanoid.solvers.ipm.restoration import (
     enter_restoration,
     leave_restoration,
@@ -62,17 +62,16 @@ def running():
     return jnp.full((), Status.Running, jnp.int32)
 
 
-def initial_state(ctx: Context, P: Prob, x0) -> State:
-    """The starting point pushed into the bounds (Sec. 3.6) with least-squares multipliers, an
-    empty filter with IPOPT's theta_min/theta_max, and empty history arrays."""
+def initial_state(ctx: Context, P: Prob, x, raw: Evals) -> State:
+    """The state at the starting point x of ``make_prob`` (with its unscaled evaluations
+    ``raw``): slacks pushed into their bounds (Sec. 3.6), least-squares multipliers, an empty
+    filter with IPOPT's theta_min/theta_max, and empty history arrays."""
     o, n, m = ctx.o, ctx.n, ctx.m
     H = o.max_iter + 1
-    x = push(x0, P.xl, P.xu, P.hxl, P.hxu, o.bound_push, o.bound_frac)
-    f, g = evaluate(ctx, P, x)
+    f, g = P.sf * raw.f, P.sg * raw.g
     s = push(g, P.gl, P.gu, P.hsl, P.hsu, o.slack_bound_push, o.slack_bound_frac)
     s = jnp.where(P.eq, P.gl, jnp.where(P.free, g, s))
-    grad, jac = derivs(ctx, P, x)
-    ev = Evals(f, g, grad, jac)
+    ev = Evals(f, g, P.sf * raw.grad, P.sg[ctx.jr] * raw.jac)
     bm = o.bound_mult_init_val
     it = Iterate(
         x,
@@ -343,8 +342,8 @@ def iteration(ctx: Context, P: Prob, S: State):
 
 def start(ctx: Context, x0, xl, xu, gl, gu, p) -> tuple[State, Prob]:
     """The scaled problem and the checked initial state (iteration 0) from the user's data."""
-    P, x0 = make_prob(ctx, x0, xl, xu, gl, gu, p)
-    S = initial_state(ctx, P, x0)
+    P, x, raw = make_prob(ctx, x0, xl, xu, gl, gu, p)
+    S = initial_state(ctx, P, x, raw)
     return check(ctx, P, S, initial_info(S), running()), P
 
 

@@ -24,7 +24,7 @@ from jaxhumanoid.solvers.ipm.filter import filter_ok
 from jaxhumanoid.solvers.ipm.options import IPMOptions
 from jaxhumanoid.solvers.ipm.problem import Context, evaluate
 from jaxhumanoid.solvers.ipm.restoration import merit, resto_resid
-from jaxhumanoid.solvers.ipm.state import Direction, Globalization, Iterate, Prob, Resto, State, Watchdog
+from jaxhumanoid.solvers.ipm.state import Direction, Globalization, Iterate, Prob, Resto, State, Watchdog, tree_where
 from jaxhumanoid.solvers.ipm.step import frac_dual, frac_to_boundary
 
 EPS = float(np.finfo(np.float64).eps)
@@ -178,87 +178,124 @@ def watchdog_start(o: IPMOptions, W: Watchdog, nupd, resto):
     return W, start
 
 
-def second_order_correction(
-    ctx: Context,
-    P: Prob,
-    G: Globalization,
-    it: Iterate,
-    R: Resto,
-    mu,
-    tau,
-    nw: Newton,
-    ref: Reference,
-    amax,
-    first: Trial,
-    active,
-) -> SOC:
-    """Up to ``max_soc`` corrections (Sec. 2.4), each judged at alpha_max, while theta decreases
-    by kappa_soc."""
-    o = ctx.o
+FIRST, CORRECT, HALVE, DONE = 0, 1, 2, 3  # phases of the line search's loop
+
+
+class Search(NamedTuple):
+    """Loop state of the line search: the phase of the next trial (``FIRST`` at alpha_max,
+    ``CORRECT`` a second-order correction, ``HALVE`` backtracking, ``DONE``), the first trial and
+    its verdict, and the states of the corrections and of the backtracking."""
+
+    phase: jax.Array
+    first: Trial
+    acc1: jax.Array
+    ft1: jax.Array
+    soc: SOC
+    bt: Backtrack
+
+
+class Criteria(NamedTuple):
+    """What the line search of one iteration judges its trials by."""
+
+    ref: Reference
+    theta_k: jax.Array
+    amax: jax.Array
+    a_min: jax.Array
+    tiny: jax.Array
+    W: Watchdog
+    in_wd: jax.Array
+
+
+def _start(ctx: Context, S: State, nw: Newton) -> Search:
+    """The loop's state before the first trial (every field but ``phase`` is overwritten)."""
+    z, zi, zb = jnp.zeros(()), jnp.zeros((), jnp.int32), jnp.zeros((), bool)
+    g, s = jnp.zeros(ctx.m), jnp.zeros(ctx.m)
+    trial = Trial(z, g, s, z, z)
+    return Search(
+        jnp.full((), FIRST, jnp.int32),
+        trial,
+        zb,
+        zb,
+        SOC(zi, g, z, zb, zb, zb, z, nw.d, z, g, s),
+        Backtrack(z, zi, zb, zb, z, g, s, zb),
+    )
+
+
+def _leave_corrections(L: Search, nw: Newton, B: Criteria) -> Search:
+    """After the corrections (or none): backtracking starts if no trial was accepted, unless
+    alpha_max / 2 is already below alpha_min (a failed line search)."""
+    start = (~L.acc1) & (~L.soc.acc) & nw.ok & ~B.in_wd
+    fail = (0.5 * B.amax < B.a_min) & start
+    phase = jnp.where(start & ~fail, HALVE, DONE).astype(jnp.int32)
+    return L._replace(phase=phase, bt=L.bt._replace(fail=fail))
+
+
+def _after_first(ctx: Context, P: Prob, S: State, nw: Newton, B: Criteria, L: Search, t: Trial) -> Search:
+    """The first trial, at alpha_max: accepted, or corrections if it did not reduce theta."""
+    o, R, d = ctx.o, S.rs, nw.d
+    acc1, ft1 = acceptable(o, S.gl, B.ref, B.amax, t.theta, t.phi)
+    acc1 = (acc1 | B.tiny) & ~B.W.skip_first
+    correct = (~acc1) & (t.theta >= B.theta_k) & nw.ok & (o.max_soc > 0) & ~B.in_wd & ~B.W.skip_first
+    csoc = B.amax * nw.c + resto_resid(P, R, t.g, t.s, R.p + B.amax * d.dp, R.n + B.amax * d.dn)
+    zi, zb = jnp.zeros((), jnp.int32), jnp.zeros((), bool)
+    soc = SOC(zi, csoc, t.theta, correct, zb, zb, B.amax, d, t.f, t.g, t.s)
+    bt = Backtrack(0.5 * B.amax, jnp.ones((), jnp.int32), zb, zb, t.f, t.g, t.s, zb)
+    L = Search(L.phase, t, acc1, ft1, soc, bt)
+    return tree_where(correct, L._replace(phase=jnp.full((), CORRECT, jnp.int32)), _leave_corrections(L, nw, B))
+
+
+def _after_correction(
+    ctx: Context, P: Prob, S: State, nw: Newton, B: Criteria, L: Search, t: Trial, a, d: Direction
+) -> Search:
+    """A second-order correction (Sec. 2.4), judged at alpha_max; the next one while none is
+    accepted, fewer than ``max_soc`` were made and theta decreased by kappa_soc."""
+    o, R, Q = ctx.o, S.rs, L.soc
+    acc, ftype = acceptable(o, S.gl, B.ref, B.amax, t.theta, t.phi)
+    p = Q.p + 1
+    cont = (~acc) & (p < o.max_soc) & (t.theta <= o.kappa_soc * Q.theta_old)
+    csoc = a * Q.csoc + resto_resid(P, R, t.g, t.s, R.p + a * d.dp, R.n + a * d.dn)
+    L = L._replace(soc=SOC(p, csoc, t.theta, cont, acc, ftype, a, d, t.f, t.g, t.s))
+    return tree_where(cont, L, _leave_corrections(L, nw, B))
+
+
+def _after_halving(ctx: Context, S: State, B: Criteria, L: Search, t: Trial) -> Search:
+    """A backtracking trial: accepted, or alpha halved unless below alpha_min or out of trials."""
+    o, T = ctx.o, L.bt
+    acc, ftype = acceptable(o, S.gl, B.ref, T.a, t.theta, t.phi)
+    a_next = 0.5 * T.a
+    fail = (~acc) & ((a_next < B.a_min) | (T.t + 1 >= o.max_ls_trials))
+    bt = Backtrack(jnp.where(acc, T.a, a_next), T.t + 1, acc, ftype, t.f, t.g, t.s, fail)
+    return L._replace(phase=jnp.where(acc | fail, DONE, HALVE).astype(jnp.int32), bt=bt)
+
+
+def search(ctx: Context, P: Prob, S: State, nw: Newton, mu, tau, B: Criteria) -> Search:
+    """Every trial point of one line search in one loop: the first trial at alpha_max, the
+    corrections, then alpha halved from alpha_max / 2. The loop evaluates (f, g) at one place,
+    which keeps the traced program, and so its compile time, small."""
+    it, R = S.it, S.rs
     rr = R.on & ~P.free
-    d = nw.d
-    soc0 = SOC(
-        jnp.zeros((), jnp.int32),
-        amax * nw.c + resto_resid(P, R, first.g, first.s, R.p + amax * d.dp, R.n + amax * d.dn),
-        first.theta,
-        active,
-        jnp.zeros((), bool),
-        jnp.zeros((), bool),
-        amax,
-        d,
-        first.f,
-        first.g,
-        first.s,
-    )
 
-    def body(Q):
-        d_s = corrected_direction(ctx, P, nw, Q.csoc)
-        a_s = step_max(P, it, R, rr, tau, d_s)
-        t = trial_at(ctx, P, it, R, mu, a_s, d_s)
-        acc, ftype = acceptable(o, G, ref, amax, t.theta, t.phi)
-        p = Q.p + 1
-        cont = (~acc) & (p < o.max_soc) & (t.theta <= o.kappa_soc * Q.theta_old)
-        csoc = a_s * Q.csoc + resto_resid(P, R, t.g, t.s, R.p + a_s * d_s.dp, R.n + a_s * d_s.dn)
-        return SOC(p, csoc, t.theta, cont, acc, ftype, a_s, d_s, t.f, t.g, t.s)
+    def correction(L):
+        d_s = corrected_direction(ctx, P, nw, L.soc.csoc)
+        return step_max(P, it, R, rr, tau, d_s), d_s
 
-    return lax.while_loop(lambda Q: Q.active, body, soc0)
-
-
-def backtrack(
-    ctx: Context,
-    P: Prob,
-    G: Globalization,
-    it: Iterate,
-    R: Resto,
-    mu,
-    d: Direction,
-    ref: Reference,
-    amax,
-    a_min,
-    first: Trial,
-    start,
-) -> Backtrack:
-    """Halve alpha from alpha_max / 2 until a trial is acceptable, below a_min or out of trials."""
-    o = ctx.o
-    ls0 = Backtrack(
-        0.5 * amax,
-        jnp.ones((), jnp.int32),
-        jnp.zeros((), bool),
-        jnp.zeros((), bool),
-        first.f,
-        first.g,
-        first.s,
-        (0.5 * amax < a_min) & start,
-    )
+    def along(L):
+        return jnp.where(L.phase == FIRST, B.amax, L.bt.a), nw.d
 
     def body(L):
-        t = trial_at(ctx, P, it, R, mu, L.a, d)
-        acc, ftype = acceptable(o, G, ref, L.a, t.theta, t.phi)
-        a_next = 0.5 * L.a
-        fail = (~acc) & ((a_next < a_min) | (L.t + 1 >= o.max_ls_trials))
-        return Backtrack(jnp.where(acc, L.a, a_next), L.t + 1, acc, ftype, t.f, t.g, t.s, fail)
+        a, d = lax.cond(L.phase == CORRECT, correction, along, L)
+        t = trial_at(ctx, P, it, R, mu, a, d)
+        return lax.switch(
+            L.phase,
+            (
+                lambda L_: _after_first(ctx, P, S, nw, B, L_, t),
+                lambda L_: _after_correction(ctx, P, S, nw, B, L_, t, a, d),
+                lambda L_: _after_halving(ctx, S, B, L_, t),
+            ),
+            L,
+        )
 
-    return lax.while_loop(lambda L: start & (~L.acc) & (~L.fail), body, ls0)
+    return lax.while_loop(lambda L: L.phase != DONE, body, _start(ctx, S, nw))
 
 
 def line_search(ctx: Context, P: Prob, S: State, nw: Newton, mu, tau, nupd) -> LineSearch:
@@ -279,27 +316,8 @@ def line_search(ctx: Context, P: Prob, S: State, nw: Newton, mu, tau, nupd) -> L
     in_wd = W.on | start_wd
     ref = Reference(jnp.where(W.on, W.theta, theta_k), jnp.where(W.on, W.phi, phi_k), jnp.where(W.on, W.gd, gd))
     tiny = tiny_step(it, d, ok_step, resto)
-
-    first = trial_at(ctx, P, it, R, mu, amax, d)
-    acc1, ft1 = acceptable(o, S.gl, ref, amax, first.theta, first.phi)
-    acc1 = (acc1 | tiny) & ~W.skip_first
-    # second-order corrections only if the first trial did not reduce theta
-    soc = second_order_correction(
-        ctx,
-        P,
-        S.gl,
-        it,
-        R,
-        mu,
-        tau,
-        nw,
-        ref,
-        amax,
-        first,
-        (~acc1) & (first.theta >= theta_k) & ok_step & (o.max_soc > 0) & ~in_wd & ~W.skip_first,
-    )
-    start_bt = (~acc1) & (~soc.acc) & ok_step & ~in_wd
-    ls = backtrack(ctx, P, S.gl, it, R, mu, d, ref, amax, a_min, first, start_bt)
+    L = search(ctx, P, S, nw, mu, tau, Criteria(ref, theta_k, amax, a_min, tiny, W, in_wd))
+    first, acc1, ft1, soc, ls = L.first, L.acc1, L.ft1, L.soc, L.bt
 
     # watchdog outcome: an acceptable full step ends it; otherwise the full step is taken
     # tentatively, or, after watchdog_trial_iter_max of them, the iterate goes back

@@ -13,12 +13,14 @@ from __future__ import annotations
 
 from typing import Any, NamedTuple
 
+import jax
 import jax.numpy as jnp
 import numpy as np
+from jax import lax
 
 from jaxhumanoid.solvers.ipm import kkt
 from jaxhumanoid.solvers.ipm.options import IPMOptions
-from jaxhumanoid.solvers.ipm.state import Prob, Solution, State
+from jaxhumanoid.solvers.ipm.state import Evals, Prob, Solution, State
 
 
 class Context(NamedTuple):
@@ -119,13 +121,20 @@ def relax(b, mask, sign, factor):
     return jnp.where(mask, b + sign * factor * jnp.maximum(1.0, jnp.abs(b)), b)
 
 
-def scaling(ctx: Context, x0, fixed, p):
-    """Objective and constraint scaling factors sf (), sg (m,): gradient-based (Sec. 3.8) at the
-    starting point, max gradient entry scaled down to ``nlp_scaling_max_gradient``."""
+def raw_evals(ctx: Context, xs, p) -> Evals:
+    """Unscaled f, g, grad and Jacobian values at each row of xs (k, n), stacked: one traced
+    evaluation for all rows (``lax.map``), so that the start adds no copy of the NLP's functions
+    to the compiled program."""
+    nlp = ctx.nlp
+    return Evals(*lax.map(lambda x: (nlp.f(x, p), nlp.g(x, p), nlp.grad(x, p), nlp.jac_values(x, p)), xs))
+
+
+def scaling(ctx: Context, g0, j0, fixed):
+    """Objective and constraint scaling factors sf (), sg (m,): gradient-based (Sec. 3.8) from
+    the gradient g0 (n,) and Jacobian values j0 (nnz_jac,) at the starting point, max gradient
+    entry scaled down to ``nlp_scaling_max_gradient``."""
     o, m = ctx.o, ctx.m
     if o.nlp_scaling_method == "gradient-based":
-        g0 = ctx.nlp.grad(x0, p)
-        j0 = ctx.nlp.jac_values(x0, p)
         gmax = jnp.max(jnp.abs(jnp.where(fixed, 0.0, g0)), initial=0.0)
         sf = jnp.maximum(
             o.nlp_scaling_min_value, jnp.minimum(1.0, o.nlp_scaling_max_gradient / jnp.maximum(gmax, 1e-300))
@@ -142,12 +151,14 @@ def scaling(ctx: Context, x0, fixed, p):
     return sf, sg
 
 
-def make_prob(ctx: Context, x0, xl, xu, gl, gu, p):
-    """The scaled problem's data and the starting point with fixed variables at their value.
+def make_prob(ctx: Context, x0, xl, xu, gl, gu, p) -> tuple[Prob, jax.Array, Evals]:
+    """The scaled problem's data, the starting point (fixed variables at their value, pushed
+    into the bounds, Sec. 3.6) and the unscaled evaluations there.
 
     Finite variable and inequality bounds are relaxed (``bound_relax_factor``); like IPOPT 3.14
     (honor_original_bounds = no) the final x is not projected back, which would break the
-    stationarity of the returned multipliers."""
+    stationarity of the returned multipliers. The scaling is that of x0 before the push."""
+    o = ctx.o
     x0, xl, xu, gl, gu = (jnp.asarray(a, dtype=float) for a in (x0, xl, xu, gl, gu))
     fixed = xl == xu
     eq = gl == gu
@@ -155,13 +166,16 @@ def make_prob(ctx: Context, x0, xl, xu, gl, gu, p):
     hxu = jnp.isfinite(xu) & ~fixed
     hsl = jnp.isfinite(gl) & ~eq
     hsu = jnp.isfinite(gu) & ~eq
-    rf = ctx.o.bound_relax_factor
+    rf = o.bound_relax_factor
     xl, xu = relax(xl, hxl, -1.0, rf), relax(xu, hxu, 1.0, rf)
     gl, gu = relax(gl, hsl, -1.0, rf), relax(gu, hsu, 1.0, rf)
     free = ~eq & ~hsl & ~hsu
     x0 = jnp.where(fixed, xl, x0)
-    sf, sg = scaling(ctx, x0, fixed, p)
-    return Prob(p, xl, xu, gl * sg, gu * sg, hxl, hxu, fixed, eq, hsl, hsu, free, sf, sg), x0
+    x = push(x0, xl, xu, hxl, hxu, o.bound_push, o.bound_frac)
+    ev = raw_evals(ctx, jnp.stack([x0, x]), p)
+    sf, sg = scaling(ctx, ev.grad[0], ev.jac[0], fixed)
+    P = Prob(p, xl, xu, gl * sg, gu * sg, hxl, hxu, fixed, eq, hsl, hsu, free, sf, sg)
+    return P, x, jax.tree.map(lambda a: a[1], ev)
 
 
 def push(x, lo, hi, hlo, hhi, push_, frac):
