@@ -1,7 +1,7 @@
 """Study: do the plans of T1-T4 execute? Open loop against TVLQR over perturbed bodies and starts.
 
     python scripts/study_tracking.py [--tasks T1 T2 T3 T4 | examples/paper/T1.toml ...] [--trials 100]
-        [--seed 0] [--plans DIR] [--out docs/tracking.json] [--lqr Q_RAD QD_RAD_S U_NM [FOOT_N]]
+        [--seed 0] [--plans DIR] [--out docs/tracking.json] [--lqr KEY=VALUE ...]
         [--foot-margin LOAD FRICTION COP] [--N 100] [--qp-filter [LOAD FRICTION COP]] [--defects]
         [--ablation [mass length contact friction start_rad torque_noise_Nm]]
 
@@ -36,6 +36,7 @@ import numpy as np
 
 import jaxhumanoid as jh
 from jaxhumanoid.model.foot import FootMargin
+from jaxhumanoid.outputs.cli import with_overrides
 from jaxhumanoid.progress import Progress
 from jaxhumanoid.tracking import LQRWeights, Perturbation, track
 from jaxhumanoid.tracking.filter import SafetyFilter
@@ -208,9 +209,8 @@ def main() -> None:
     parser.add_argument(
         "--lqr",
         nargs="+",
-        type=float,
-        metavar="DEV",
-        help="TVLQR acceptable deviations Q_RAD QD_RAD_S U_NM [FOOT_N] (default those of LQRWeights)",
+        metavar="KEY=VALUE",
+        help="TVLQR acceptable deviations, as for jaxhumanoid track (q_rad=0.05 ...; the others LQRWeights')",
     )
     parser.add_argument(
         "--foot-margin",
@@ -245,9 +245,10 @@ def main() -> None:
     if args.defects:
         write_defects(args, rows, out)
         return
-    if args.lqr is not None and len(args.lqr) not in (3, 4):
-        parser.error(f"--lqr: expected Q_RAD QD_RAD_S U_NM [FOOT_N], got {args.lqr}")
-    weights = LQRWeights(**dict(zip(("q_rad", "qd_rad_s", "u_Nm", "foot_N"), args.lqr or ())))
+    try:
+        weights = with_overrides(LQRWeights(), args.lqr, "--lqr")
+    except ValueError as e:
+        parser.error(str(e))
     if args.qp_filter is not None and len(args.qp_filter) not in (0, 3):
         parser.error(f"--qp-filter: expected nothing or LOAD FRICTION COP, got {args.qp_filter}")
     safety = None if args.qp_filter is None else SafetyFilter(*args.qp_filter)
