@@ -30,7 +30,7 @@ from jaxhumanoid.solvers.ipm.direction import Newton, kkt_factor, newton_step, s
 from jaxhumanoid.solvers.ipm.filter import filter_add, filter_reset
 from jaxhumanoid.solvers.ipm.linesearch import LineSearch, line_search
 from jaxhumanoid.solvers.ipm.options import IPMOptions, make_options
-from jaxhumanoid.solvers.ipm.problem import Context, derivs, make_context, make_prob, push, solution, theta_of
+from jaxhumanoid.solvers.ipm.problem import Context, derivs, make_context, make_prob, push, scaled, solution, theta_of
 from jaxhumanoid.solvers.ipm.restoration import (
     enter_restoration,
     leave_restoration,
@@ -68,10 +68,10 @@ def initial_state(ctx: Context, P: Prob, x, raw: Evals) -> State:
     filter with IPOPT's theta_min/theta_max, and empty history arrays."""
     o, n, m = ctx.o, ctx.n, ctx.m
     H = o.max_iter + 1
-    f, g = P.sf * raw.f, P.sg * raw.g
+    ev = scaled(ctx, P, raw)
+    g = ev.g
     s = push(g, P.gl, P.gu, P.hsl, P.hsu, o.slack_bound_push, o.slack_bound_frac)
     s = jnp.where(P.eq, P.gl, jnp.where(P.free, g, s))
-    ev = Evals(f, g, P.sf * raw.grad, P.sg[ctx.jr] * raw.jac)
     bm = o.bound_mult_init_val
     it = Iterate(
         x,

@@ -77,6 +77,12 @@ def derivs(ctx: Context, P: Prob, x):
     return grad, jac
 
 
+def scaled(ctx: Context, P: Prob, raw: Evals) -> Evals:
+    """``raw`` (unscaled f, g, gradient and Jacobian values, ``raw_evals``) in the scaled problem's
+    units, as ``evaluate`` and ``derivs`` give them."""
+    return Evals(P.sf * raw.f, P.sg * raw.g, P.sf * raw.grad, P.sg[ctx.jr] * raw.jac)
+
+
 def hessian(ctx: Context, P: Prob, x, y, resto):
     """Hessian of the Lagrangian (nnz_hess,); the restoration problem's objective has none in x
     besides the proximity term, which enters the diagonal (``restoration.prox_weight``)."""
