@@ -23,7 +23,7 @@ from jaxhumanoid.strategy.posture import margins
 from jaxhumanoid.studies import Crash, Outcome, Spec, agreement, load_spec, parse_spec, read_table, run_jobs, sweep
 from jaxhumanoid.studies.compare import problem_agreement
 from jaxhumanoid.studies.engines import plan_queues
-from jaxhumanoid.studies.run import perturbed_contact, perturbed_start, perturbed_weights
+from jaxhumanoid.studies.run import base_problem, perturbed_contact, perturbed_start, perturbed_weights
 from jaxhumanoid.studies.sweep import select_cases
 from jaxhumanoid.studies.table import Table, finished_ids, recovery
 
@@ -53,6 +53,18 @@ def test_ids_are_hashes_of_the_parameters():
     two = parse_spec({**TINY, "solvers": ["ipopt", "ipm"]}).cases
     assert [c.problem for c in two] == [a.problem, a.problem, b.problem, b.problem]
     assert len({c.id for c in two}) == 4
+
+
+def test_a_spec_scaling_reaches_the_solve_and_an_unset_one_keeps_the_ids():
+    (a, _) = parse_spec(TINY).cases
+    (scaled, _) = parse_spec({**TINY, "scaling": "physical"}).cases
+    # an unset scaling is not a parameter: the shipped robustness spec keeps its recorded ids
+    recorded = {r["id"] for r in read_table(ROOT / "docs" / "studies" / "robustness_ipopt_ipm_cases.csv")}
+    spec = select_cases(load_spec(ROOT / "examples" / "studies" / "robustness.toml"), solvers=("ipopt", "ipm"))
+    assert {c.id for c in spec.cases} == recorded
+    assert scaled.id != a.id and scaled.problem != a.problem
+    assert "scaling" not in a.params() and scaled.params()["scaling"] == "physical"
+    assert base_problem(scaled)["scaling"] == "physical" and "scaling" not in base_problem(a)
 
 
 def test_random_draws_are_reproducible_and_independent_of_their_number():
@@ -89,6 +101,7 @@ def test_random_draws_are_reproducible_and_independent_of_their_number():
         ({"random": {"weights.w_u": {"uniform": [0.5, 2.0]}}}, "random.weights.w_u"),
         ({"random": {"start_deg": "2"}}, "random.start_deg"),
         ({"kind": "table"}, "kind"),
+        ({"scaling": "si"}, "scaling"),
         ({"kind": "inverse", "methods": ["newton"], "grid": None}, "methods"),
     ],
 )

@@ -36,7 +36,7 @@ SOLVE_DEFAULTS = {"N": 100, "T": 5.0}
 
 def base_problem(case: Case) -> dict[str, Any]:
     """The keyword arguments of ``solve`` for the unperturbed task: a paper key, or a task file's
-    body, laws, options and settings (N, T, N1 of the file unless the case sets them)."""
+    body, laws, options and settings (N, T, N1 and scaling of the file unless the case sets them)."""
     if case.task_path is None:
         kwargs: dict[str, Any] = {"task": get_task(case.task), "model": None, "contact": None, "options": None}
     else:
@@ -47,6 +47,8 @@ def base_problem(case: Case) -> dict[str, Any]:
         value = getattr(case, key)
         kwargs[key] = value if value is not None else kwargs.get(key, SOLVE_DEFAULTS.get(key))
     kwargs["options"] = {**(kwargs.get("options") or {}), **dict(case.options)} or None
+    if case.scaling is not None:
+        kwargs["scaling"] = case.scaling
     return kwargs
 
 

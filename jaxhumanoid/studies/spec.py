@@ -8,6 +8,7 @@
     N = [10, 15]                          # default: the task file's, else 100
     T = [5.0]                             # default: the task file's, else 5
     N1 = [10]                             # stage-1 intervals of 2S (default min(30, N))
+    scaling = "physical"                  # the NLPs' units (``ocp.scaling.SCALINGS``; default the task's)
     save = true                           # write each solution to DIR/cases/<id>/ (default true)
     [options]                             # solver options of every case (optional)
     tol = 1e-8
@@ -50,6 +51,7 @@ from typing import Any
 
 import numpy as np
 
+from jaxhumanoid.ocp.scaling import SCALINGS
 from jaxhumanoid.ocp.scheme import parse_scheme
 from jaxhumanoid.ocp.tasks import TASKS, get_task
 from jaxhumanoid.runtime import read_toml
@@ -74,7 +76,8 @@ FACTORS = (
 DISTRIBUTIONS = ("uniform", "log_uniform", "choice")
 METHODS = ("gn", "lbfgs")
 TOP_KEYS = {
-    "solve": {"name", "kind", "tasks", "schemes", "solvers", "N", "T", "N1", "save", "options", "grid", "random"},
+    "solve": {"name", "kind", "tasks", "schemes", "solvers", "N", "T", "N1", "scaling", "save", "options", "grid"}
+    | {"random"},
     "inverse": {"name", "kind", "tasks", "schemes", "N", "T", "methods", "starts", "seeds", "max_evals"}
     | {"recovery_rtol"},
 }
@@ -105,6 +108,7 @@ class Case:
     N: int | None
     T: float | None
     N1: int | None = None
+    scaling: str | None = None
     options: tuple[tuple[str, Any], ...] = ()
     factors: tuple[tuple[str, float], ...] = ()
     start_offset: tuple[float, ...] | None = None
@@ -120,10 +124,13 @@ class Case:
     task_path: str | None = dataclasses.field(default=None, compare=False)
 
     def params(self, with_solver: bool = True) -> dict[str, Any]:
-        """The canonical parameters (everything but ``task_path`` and ``save``)."""
+        """The canonical parameters (everything but ``task_path``, ``save`` and an unset ``scaling``,
+        so that a case's id does not change where the spec leaves the scaling to the task)."""
         d = dataclasses.asdict(self)
         d.pop("task_path")
         d.pop("save")
+        if self.scaling is None:
+            d.pop("scaling")
         d["options"] = dict(self.options)
         d["factors"] = dict(self.factors)
         if not with_solver:
@@ -310,6 +317,9 @@ def _solve_cases(data: Mapping, base: pathlib.Path) -> tuple[list[Case], tuple[s
     save = data.get("save", True)
     if not isinstance(save, bool):
         raise ValueError(f"save: expected true or false, got {save!r}")
+    scaling = data.get("scaling")
+    if scaling is not None and scaling not in SCALINGS:
+        raise ValueError(f"scaling: expected one of {SCALINGS}, got {scaling!r}")
     options = data.get("options", {})
     if not isinstance(options, dict):
         raise ValueError(f"options: expected a table of solver options, got {options!r}")
@@ -340,6 +350,7 @@ def _solve_cases(data: Mapping, base: pathlib.Path) -> tuple[list[Case], tuple[s
                     N=int(drawn.get("N", N)) if drawn.get("N", N) is not None else None,
                     T=float(drawn.get("T", T)) if drawn.get("T", T) is not None else None,
                     N1=N1,
+                    scaling=scaling,
                     options=tuple(sorted(options.items())),
                     factors=tuple(sorted(factors.items())),
                     start_offset=drawn.get("start_offset"),
