@@ -73,34 +73,37 @@ def run_one(problem: Problem, x0, stage: str, variant: str) -> dict:
     }
 
 
-def summarise(records: list[dict]) -> dict:
+def summarise(records: list[dict], variants: tuple[str, str] = VARIANTS) -> dict:
+    """Per stage and variant: successes and medians (iterations, factorisations per iteration
+    where the records have them, solve time, ms per iteration); the median ratios of the second
+    variant over the first on the same NLP, and on how many NLPs both reach the same optimum."""
+    a, b = variants
     out: dict = {}
     for stage in ("stage 1", "stage 2"):
         recs = [r for r in records if r["stage"] == stage]
         row: dict = {"nlps": len(recs)}
-        for v in VARIANTS:
+        for v in variants:
             rs = [r[v] for r in recs]
             row[v] = {
                 "succeeded": sum(r["success"] for r in rs),
                 "iterations_median": float(np.median([r["iterations"] for r in rs])),
-                "factorisations_per_iteration_median": float(
-                    np.median([r["factorisations"] / max(r["iterations"], 1) for r in rs])
-                ),
                 "solve_s_median": float(np.median([r["solve_s"] for r in rs])),
+                "ms_per_iteration_median": float(np.median([1e3 * r["solve_s"] / max(r["iterations"], 1) for r in rs])),
             }
-        both = [r for r in recs if r["zero"]["success"] and r["last"]["success"]]
+            if all("factorisations" in r for r in rs):
+                row[v]["factorisations_per_iteration_median"] = float(
+                    np.median([r["factorisations"] / max(r["iterations"], 1) for r in rs])
+                )
+        both = [r for r in recs if r[a]["success"] and r[b]["success"]]
         row["same_optimum"] = sum(
-            abs(r["last"]["objective"] - r["zero"]["objective"]) <= 1e-6 * abs(r["zero"]["objective"]) for r in both
+            abs(r[b]["objective"] - r[a]["objective"]) <= 1e-6 * abs(r[a]["objective"]) for r in both
         )
         row["both_succeeded"] = len(both)
-        row["time_ratio_last_over_zero_median"] = float(
-            np.median([r["last"]["solve_s"] / r["zero"]["solve_s"] for r in recs])
-        )
+        row[f"time_ratio_{b}_over_{a}_median"] = float(np.median([r[b]["solve_s"] / r[a]["solve_s"] for r in recs]))
         row["time_per_iteration_ratio_median"] = float(
             np.median(
                 [
-                    (r["last"]["solve_s"] / max(r["last"]["iterations"], 1))
-                    / (r["zero"]["solve_s"] / max(r["zero"]["iterations"], 1))
+                    (r[b]["solve_s"] / max(r[b]["iterations"], 1)) / (r[a]["solve_s"] / max(r[a]["iterations"], 1))
                     for r in recs
                 ]
             )
@@ -109,23 +112,24 @@ def summarise(records: list[dict]) -> dict:
     return out
 
 
-def table(summary: dict) -> str:
-    lines = [
-        "| NLP | first trial | succeeded | iterations (median) | factorisations / iteration | solve s (median) |",
-        "|---|---|---|---|---|---|",
-    ]
+def table(summary: dict, variants: tuple[str, str] = VARIANTS, label: str = "first trial") -> str:
+    a, b = variants
+    fact = all("factorisations_per_iteration_median" in row[v] for row in summary.values() for v in variants)
+    head = f"| NLP | {label} | succeeded | iterations (median) | " + ("factorisations / iteration | " if fact else "")
+    lines = [head + "solve s (median) | ms / iteration (median) |", "|---" * (6 + fact) + "|"]
     for stage, row in summary.items():
-        for v in VARIANTS:
+        for v in variants:
             s = row[v]
+            f = f"{s['factorisations_per_iteration_median']:.2f} | " if fact else ""
             lines.append(
-                f"| {stage} | {v} | {s['succeeded']}/{row['nlps']} | {s['iterations_median']:.0f} | "
-                f"{s['factorisations_per_iteration_median']:.2f} | {s['solve_s_median']:.2f} |"
+                f"| {stage} | {v} | {s['succeeded']}/{row['nlps']} | {s['iterations_median']:.0f} | {f}"
+                f"{s['solve_s_median']:.2f} | {s['ms_per_iteration_median']:.1f} |"
             )
     lines.append("")
     for stage, row in summary.items():
         lines.append(
             f"- {stage}: same optimum on {row['same_optimum']} of the {row['both_succeeded']} NLPs both solve; "
-            f"median time ratio last / zero {row['time_ratio_last_over_zero_median']:.2f}, "
+            f"median time ratio {b} / {a} {row[f'time_ratio_{b}_over_{a}_median']:.2f}, "
             f"per iteration {row['time_per_iteration_ratio_median']:.2f}."
         )
     return "\n".join(lines) + "\n"

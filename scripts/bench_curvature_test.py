@@ -1,0 +1,79 @@
+"""Benchmark: IPOPT's inertia test against its inertia-free curvature test, in one run.
+
+    OMP_NUM_THREADS=1 python scripts/bench_curvature_test.py [--tasks T1 T2 T3 T4] [--draws 4] [--seed 0]
+                                                            [--tol 1e-12] [--out results/bench_curvature_test.json]
+
+IPOPT factors K until its inertia is (n, m, 0) (Algorithm IC); on these non-convex NLPs the plain
+trial (delta_w = 0) fails on most iterations, so an iteration factors K about twice. With
+``neg_curv_test_tol`` > 0 IPOPT ignores a wrong inertia and accepts the step when its curvature
+is positive enough (the test of Chiang and Zavala), which saves the second factorisation where
+the step passes. Would the IPM gain by the same test? The NLPs are ``bench_first_trial.py``'s:
+per task, draw 0 as posed and draws 1.. with the four cost terms scaled log-uniformly in [0.5, 2];
+stage 1 of 2S from the initial guess and the dynamic stage 2 from IPOPT's stage-1 solution. Each
+is solved by IPOPT with each test, one after the other after a two-iteration warm-up (callbacks
+compiled): status, iterations, solve time, objective. The table (``bench_first_trial.table``)
+gives per test the successes, the medians of iterations, solve time and time per iteration, the
+median ratios (curvature / inertia, same NLP) and on how many NLPs both reach the same optimum
+(objectives within 1e-6 relative).
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from _bench import write
+from bench_first_trial import nlps, summarise, table, weights_of
+
+import jaxhumanoid as jh
+from jaxhumanoid.progress import Progress
+from jaxhumanoid.solvers.ipopt import solve_ipopt
+from jaxhumanoid.strategy import solve as strat
+
+TESTS = ("inertia", "curvature")
+
+
+def run_nlp(problem, x0, stage: str, tol: float) -> dict:
+    base = strat.STAGE1_DEFAULTS if stage == "stage 1" else strat.STAGE2_DEFAULTS
+    solve_ipopt(problem.nlp, problem.p, problem.bounds, x0=x0, options={**base, "max_iter": 2})
+    out = {}
+    for test, extra in zip(TESTS, ({}, {"neg_curv_test_tol": tol})):
+        r = solve_ipopt(problem.nlp, problem.p, problem.bounds, x0=x0, options={**base, **extra})
+        out[test] = {
+            "status": r.status,
+            "success": bool(r.success),
+            "iterations": int(r.iterations),
+            "solve_s": float(r.solve_time_s),
+            "objective": float(r.objective),
+        }
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--tasks", nargs="+", default=["T1", "T2", "T3", "T4"])
+    ap.add_argument("--draws", type=int, default=4, help="problems per task (draw 0: the task as posed)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--tol", type=float, default=1e-12, help="IPOPT's neg_curv_test_tol of the curvature test")
+    ap.add_argument("--out", default="results/bench_curvature_test.json")
+    ap.add_argument("--quiet", action="store_true")
+    args = ap.parse_args()
+    if args.draws < 1:
+        raise SystemExit("--draws: expected an integer >= 1")
+    if not args.tol > 0:
+        raise SystemExit("--tol: expected a positive tolerance")
+    for task in args.tasks:
+        jh.get_task(task)  # a bad key fails here, before any solve
+    progress = Progress(len(args.tasks) * args.draws, quiet=args.quiet)
+    records = []
+    for task in args.tasks:
+        for draw in range(args.draws):
+            for stage, problem, x0 in nlps(task, weights_of(task, draw, args.seed)):
+                records.append({"task": task, "draw": draw, "stage": stage, **run_nlp(problem, x0, stage, args.tol)})
+            progress.completed(f"{task} draw {draw}", "")
+    summary = summarise(records, TESTS)
+    write({"args": vars(args), "summary": summary, "records": records}, args.out)
+    print(table(summary, TESTS, label="test"))
+
+
+if __name__ == "__main__":
+    main()
