@@ -22,10 +22,8 @@ from __future__ import annotations
 import argparse
 
 from _bench import write
-from bench_first_trial import nlps, summarise, table, weights_of
+from bench_first_trial import run_all, summarise, table
 
-import jaxhumanoid as jh
-from jaxhumanoid.progress import Progress
 from jaxhumanoid.solvers.ipopt import solve_ipopt
 from jaxhumanoid.strategy import solve as strat
 
@@ -57,19 +55,9 @@ def main() -> None:
     ap.add_argument("--out", default="results/bench_curvature_test.json")
     ap.add_argument("--quiet", action="store_true")
     args = ap.parse_args()
-    if args.draws < 1:
-        raise SystemExit("--draws: expected an integer >= 1")
     if not args.tol > 0:
         raise SystemExit("--tol: expected a positive tolerance")
-    for task in args.tasks:
-        jh.get_task(task)  # a bad key fails here, before any solve
-    progress = Progress(len(args.tasks) * args.draws, quiet=args.quiet)
-    records = []
-    for task in args.tasks:
-        for draw in range(args.draws):
-            for stage, problem, x0 in nlps(task, weights_of(task, draw, args.seed)):
-                records.append({"task": task, "draw": draw, "stage": stage, **run_nlp(problem, x0, stage, args.tol)})
-            progress.completed(f"{task} draw {draw}", "")
+    records = run_all(args, lambda problem, x0, stage: run_nlp(problem, x0, stage, args.tol))
     summary = summarise(records, TESTS)
     write({"args": vars(args), "summary": summary, "records": records}, args.out)
     print(table(summary, TESTS, label="test"))

@@ -135,6 +135,27 @@ def table(summary: dict, variants: tuple[str, str] = VARIANTS, label: str = "fir
     return "\n".join(lines) + "\n"
 
 
+def run_all(args, solve_nlp) -> list[dict]:
+    """Every NLP of ``args.tasks`` x ``args.draws`` (stage 1 and stage 2 each) given to
+    ``solve_nlp(problem, x0, stage)``, whose dict of results per variant joins the record; the
+    arguments are checked first and a progress line follows the problems."""
+    if args.draws < 1:
+        raise SystemExit("--draws: expected an integer >= 1")
+    for task in args.tasks:
+        try:
+            jh.get_task(task)  # a bad key fails here, before any solve
+        except ValueError as err:
+            raise SystemExit(f"--tasks: {err}") from None
+    progress = Progress(len(args.tasks) * args.draws, quiet=args.quiet)
+    records = []
+    for task in args.tasks:
+        for draw in range(args.draws):
+            for stage, problem, x0 in nlps(task, weights_of(task, draw, args.seed)):
+                records.append({"task": task, "draw": draw, "stage": stage, **solve_nlp(problem, x0, stage)})
+            progress.completed(f"{task} draw {draw}", "")
+    return records
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--tasks", nargs="+", default=["T1", "T2", "T3", "T4"])
@@ -144,19 +165,7 @@ def main() -> None:
     ap.add_argument("--md", default=None, help="also write the table as Markdown")
     ap.add_argument("--quiet", action="store_true")
     args = ap.parse_args()
-    if args.draws < 1:
-        raise SystemExit("--draws: expected an integer >= 1")
-    for task in args.tasks:
-        jh.get_task(task)  # a bad key fails here, before any solve
-    progress = Progress(len(args.tasks) * args.draws, quiet=args.quiet)
-    records = []
-    for task in args.tasks:
-        for draw in range(args.draws):
-            for stage, problem, x0 in nlps(task, weights_of(task, draw, args.seed)):
-                rec = {"task": task, "draw": draw, "stage": stage}
-                rec.update({v: run_one(problem, x0, stage, v) for v in VARIANTS})
-                records.append(rec)
-            progress.completed(f"{task} draw {draw}", "")
+    records = run_all(args, lambda problem, x0, stage: {v: run_one(problem, x0, stage, v) for v in VARIANTS})
     summary = summarise(records)
     write({"summary": summary, "records": records}, args.out)
     text = table(summary)
