@@ -336,8 +336,16 @@ def test_problem_agreement_reads_the_saved_trajectories(tmp_path):
         rows.append({"problem": "p", "task": "T1", "solver": solver, "success": True, "objective": 3.0})
         rows[-1]["path"] = str(tmp_path / solver)
     two = rows[:2] + [{**r, "problem": "lone"} for r in rows[2:]]
-    assert problem_agreement(two) == {"T1": {"problems": 1, "agree": 1, "agree_fraction": 1.0}}
-    assert problem_agreement(rows)["T1"]["agree"] == 0  # casadi's trajectory lies 1e-2 rad away
+    pair = {"problems": 1, "agree": 1}
+    assert problem_agreement(two) == {
+        "T1": {"problems": 1, "agree": 1, "agree_fraction": 1.0, "pairs": {"ipopt-ipm": pair}}
+    }
+    three = problem_agreement(rows)["T1"]
+    assert three["agree"] == 0  # casadi's trajectory lies 1e-2 rad away: it is the one that parts
+    parted = {**pair, "agree": 0}
+    assert three["pairs"] == {"ipopt-ipm": pair, "ipopt-casadi": parted, "ipm-casadi": parted}
+    failed = [{**r, "success": r["solver"] != "ipm"} for r in rows[:2]]
+    assert problem_agreement(failed)["T1"]["pairs"]["ipopt-ipm"]["agree"] == 0  # same point, one failed
 
 
 def test_workers_get_one_grid_each_where_possible():

@@ -57,8 +57,9 @@ def outcome_of(row: Mapping[str, Any]) -> Outcome:
 def problem_agreement(
     rows: Iterable[Mapping[str, Any]], obj_rtol: float = OBJ_RTOL, q_atol: float = Q_ATOL
 ) -> dict[str, Any]:
-    """Per task: the problems solved by more than one solver and how many of them every solver
-    solved to the same optimum (``agreement``)."""
+    """Per task: the problems solved by more than one solver, how many of them every solver solved
+    to the same optimum (``agreement``), and per pair of solvers ("a-b") how many both solved to
+    the same optimum, which tells the solver that parts from the others."""
     problems: dict[str, dict[str, Mapping[str, Any]]] = {}
     for r in rows:
         problems.setdefault(str(r["problem"]), {})[str(r["solver"])] = r
@@ -67,10 +68,16 @@ def problem_agreement(
         if len(solves) < 2:
             continue
         task = str(next(iter(solves.values()))["task"])
-        result = agreement({s: outcome_of(r) for s, r in solves.items()}, obj_rtol, q_atol)
-        entry = out.setdefault(task, {"problems": 0, "agree": 0})
+        outcomes = {s: outcome_of(r) for s, r in solves.items()}
+        result = agreement(outcomes, obj_rtol, q_atol)
+        entry = out.setdefault(task, {"problems": 0, "agree": 0, "pairs": {}})
         entry["problems"] += 1
         entry["agree"] += int(result["agrees"])
+        for pair in result["pairs"]:
+            both = outcomes[pair["a"]].success and outcomes[pair["b"]].success
+            counts = entry["pairs"].setdefault(f"{pair['a']}-{pair['b']}", {"problems": 0, "agree": 0})
+            counts["problems"] += 1
+            counts["agree"] += int(both and pair["within"])
     for entry in out.values():
         entry["agree_fraction"] = entry["agree"] / entry["problems"]
     return out
