@@ -17,6 +17,8 @@ sweep`` draws them: ``studies.run.solve_case``), and only its stage 1 runs: the 
                         keep a start that (nearly) satisfies the constraints, as the inverse-dynamics guess does
     strength x1.5, x2   the torque box of stage 1 only widened to 1.5 or 2 times the strengths (stage 1 is
                         a warm start: the final problem keeps the strengths)
+    linear guess        the linear initial guess first instead of the inverse-dynamics one (the fallbacks
+                        then try the inverse-dynamics guess)
 
 Per variant: the largest constraint violation of stage 1's start, the first run's success and
 iterations, the stage's success after the fallbacks and its iterations over all runs (what the
@@ -44,14 +46,15 @@ from jaxhumanoid.studies import run
 from jaxhumanoid.studies.compare import OBJ_RTOL
 from jaxhumanoid.studies.spec import load_spec
 
-VARIANTS = {  # stage-1 options, scaling, factor on the strengths u_max in stage 1
-    "default": ({}, "none", 1.0),
-    "adaptive": ({"mu_strategy": "adaptive"}, "none", 1.0),
-    "physical": ({}, "physical", 1.0),
-    "adaptive+physical": ({"mu_strategy": "adaptive"}, "physical", 1.0),
-    "warm": ({"mu_init": 1e-3, "bound_push": 1e-6, "bound_frac": 1e-6}, "none", 1.0),
-    "strength x1.5": ({}, "none", 1.5),
-    "strength x2": ({}, "none", 2.0),
+VARIANTS = {  # stage-1 options, scaling, factor on the strengths u_max in stage 1, initial guess
+    "default": ({}, "none", 1.0, strat.DEFAULT_GUESS),
+    "adaptive": ({"mu_strategy": "adaptive"}, "none", 1.0, strat.DEFAULT_GUESS),
+    "physical": ({}, "physical", 1.0, strat.DEFAULT_GUESS),
+    "adaptive+physical": ({"mu_strategy": "adaptive"}, "physical", 1.0, strat.DEFAULT_GUESS),
+    "warm": ({"mu_init": 1e-3, "bound_push": 1e-6, "bound_frac": 1e-6}, "none", 1.0, strat.DEFAULT_GUESS),
+    "strength x1.5": ({}, "none", 1.5, strat.DEFAULT_GUESS),
+    "strength x2": ({}, "none", 2.0, strat.DEFAULT_GUESS),
+    "linear guess": ({}, "none", 1.0, "linear"),
 }
 
 
@@ -67,7 +70,7 @@ def stage_one_record(case, variant: str) -> dict:
     """Stage 1 of ``case`` under ``variant``: its runs' iterations, status and objective. A fallback
     runs only after a failed run, so the first run succeeded exactly when there was one run and
     the stage succeeded."""
-    options, scaling, strength = VARIANTS[variant]
+    options, scaling, strength, guess = VARIANTS[variant]
     stage_one, problem_one, solve = strat._stage_one, strat.stage_one_problem, run.solve
 
     def stronger_problem(task, scheme, final, *a, **k):
@@ -82,7 +85,7 @@ def stage_one_record(case, variant: str) -> dict:
     strat._stage_one = stopping_stage_one
     if strength != 1.0:
         strat.stage_one_problem = stronger_problem
-    run.solve = functools.partial(solve, stage1_options=options or None, scaling=scaling)
+    run.solve = functools.partial(solve, stage1_options=options or None, scaling=scaling, guess=guess)
     try:
         with tempfile.TemporaryDirectory() as tmp:
             run.solve_case(dataclasses.replace(case, save=False), pathlib.Path(tmp))
