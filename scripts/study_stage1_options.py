@@ -19,6 +19,7 @@ sweep`` draws them: ``studies.run.solve_case``), and only its stage 1 runs: the 
                         a warm start: the final problem keeps the strengths)
     linear guess        the linear initial guess first instead of the inverse-dynamics one (the fallbacks
                         then try the inverse-dynamics guess)
+    mu_init 0.1         IPOPT's default initial barrier parameter instead of 1e-2
 
 Per variant: the largest constraint violation of stage 1's start, the first run's success and
 iterations, the stage's success after the fallbacks and its iterations over all runs (what the
@@ -55,6 +56,7 @@ VARIANTS = {  # stage-1 options, scaling, factor on the strengths u_max in stage
     "strength x1.5": ({}, "none", 1.5, strat.DEFAULT_GUESS),
     "strength x2": ({}, "none", 2.0, strat.DEFAULT_GUESS),
     "linear guess": ({}, "none", 1.0, "linear"),
+    "mu_init 0.1": ({"mu_init": 0.1}, "none", 1.0, strat.DEFAULT_GUESS),
 }
 
 
