@@ -45,9 +45,10 @@ from jaxhumanoid.validation.casadi_backend import solve_casadi
 SOLVERS = ("ipopt", "ipm", "casadi")
 STAGE1_N = 30
 # Barrier settings of the two stages (docs/modelling.md; scripts/study_warm_start.py):
-# stage 1 from the linear guess with IPOPT's mu_init = 0.1 ends "infeasible" on T3; 1e-2 converges
-# on all four tasks. Stage 2 from the primal warm start: a small initial barrier and a small bound
-# push keep the warm start instead of pushing every variable back to the middle of its bounds.
+# stage 1 with mu_init = 1e-2 succeeds in one more first run of 40 perturbed problems than IPOPT's
+# 0.1, in fewer iterations at the median. Stage 2 from the primal warm start: a small initial barrier
+# and a small bound push keep the warm start instead of pushing every variable back to the middle of
+# its bounds.
 STAGE1_DEFAULTS = {"mu_init": 1e-2}
 STAGE2_DEFAULTS = {"mu_init": 1e-3, "bound_push": 1e-6, "bound_frac": 1e-6}
 # Stage 1 can still end "infeasible" from its initial guess: its landscape is chaotic, and starts
