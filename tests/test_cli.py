@@ -66,6 +66,9 @@ def test_bad_input_is_reported_before_any_work(capsys, tmp_path):
         (["track", str(tmp_path), "--perturb", "mass=2"], "Perturbation.mass"),
         (["track", str(tmp_path), "--lqr", "q_rad=small"], "--lqr"),
         (["track", str(tmp_path), "--lqr", "u_Nm=0"], "LQRWeights.u_Nm"),
+        (["check", "--task-file", "examples/paper/T1.toml"], "--task-file"),
+        (["check", "--sensitivities", "--task", "T1", "--task-file", "examples/paper/T1.toml"], "--task"),
+        (["check", "--sensitivities", "--task-file", str(tmp_path / "missing.toml")], "missing.toml"),
     ]
     for argv, field in cases:
         assert main(["--no-cache", *argv]) == 2, argv

@@ -13,6 +13,7 @@ four tasks.
 from __future__ import annotations
 
 import dataclasses
+import pathlib
 
 import jax
 import jax.numpy as jnp
@@ -239,3 +240,11 @@ def test_cli_check_sensitivities(capsys):
     assert cli.main(["check", "--sensitivities", "--task", "T3"]) == 0
     text = capsys.readouterr().out
     assert "dx* weights" in text and "12 passed, 0 failed" in text
+
+
+@pytest.mark.slow
+def test_cli_check_sensitivities_of_a_task_file(capsys):
+    path = pathlib.Path(__file__).resolve().parents[1] / "examples" / "paper" / "T4.toml"
+    assert cli.main(["check", "--sensitivities", "--task-file", str(path)]) == 0
+    text = capsys.readouterr().out
+    assert "T4 A,F+C,1S N=15" in text and "12 passed, 0 failed" in text

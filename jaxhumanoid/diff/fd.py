@@ -18,7 +18,7 @@ from jaxhumanoid.diff.active_set import missed_active_set
 from jaxhumanoid.diff.kkt import KKTSensitivity, bounds_for_goal
 from jaxhumanoid.diff.resolve import reference_solve, resolve
 from jaxhumanoid.diff.trees import rel_err, tree_vdot
-from jaxhumanoid.strategy.problem import build_problem
+from jaxhumanoid.strategy.problem import Problem, build_problem
 
 GROUPS = ("weights", "contact", "model", "horizon", "start")
 MODEL_GROUP_FIELDS = ("a", "c", "m", "inertia")
@@ -264,17 +264,21 @@ def table_rows(out: dict, tol: float = FD_TOL) -> list[dict]:
 def sensitivity_table(
     tasks=("T1", "T2", "T3", "T4"), scheme="A,F+C,1S", N=15, T=5.0, eps=1e-5, seed=1, verbose=False
 ) -> tuple[list[dict], list[dict]]:
-    """``check_against_fd`` on each task: (table rows, full results) for ``jaxhumanoid check
-    --sensitivities``. A task whose solves fail, or whose reduced KKT matrix is singular, gives
-    one failing row (the message under ``"error"``)."""
+    """``check_against_fd`` on each task, a key or a built ``Problem`` (a task file's): (table
+    rows, full results) for ``jaxhumanoid check --sensitivities``. A task whose solves fail, or
+    whose reduced KKT matrix is singular, gives one failing row (the message under ``"error"``)."""
     rows, outs = [], []
     for task in tasks:
+        problem = task if isinstance(task, Problem) else None
+        key, sch, n = (task, scheme, N)
+        if problem is not None:
+            key, sch, n = problem.task.key, str(problem.scheme), problem.layout.N
         try:
-            out = check_against_fd(task, scheme, N, T=T, eps=eps, seed=seed, verbose=verbose)
+            out = check_against_fd(key, sch, n, T=T, eps=eps, seed=seed, verbose=verbose, problem=problem)
         except (RuntimeError, np.linalg.LinAlgError) as err:  # a failed solve or a singular reduced KKT matrix
             rows.append(
                 {
-                    "case": f"{task} {scheme} N={N}",
+                    "case": f"{key} {sch} N={n}",
                     "check": "sensitivity vs FD",
                     "quantity": f"failed ({type(err).__name__})",
                     "value": float("inf"),

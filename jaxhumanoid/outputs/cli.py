@@ -25,7 +25,7 @@ from jaxhumanoid.progress import IterationLine, Progress
 from jaxhumanoid.runtime import enable_compilation_cache, writable_dir
 from jaxhumanoid.solvers import ipopt_capi
 from jaxhumanoid.strategy.posture import find_equilibrium
-from jaxhumanoid.strategy.problem import DEFAULT_GUESS, GUESSES, stage_problem
+from jaxhumanoid.strategy.problem import DEFAULT_GUESS, GUESSES, Problem, build_problem, stage_problem
 from jaxhumanoid.strategy.solution import Solution
 from jaxhumanoid.strategy.solve import DEFAULT_HANDOVER, DEFAULT_STAGE1_SOLVER, HANDOVERS, solve
 from jaxhumanoid.strategy.taskfile import load_task_file, solve_kwargs, task_files
@@ -302,10 +302,38 @@ def cmd_track(args) -> int:
     return 0
 
 
+def _file_problems(paths: list[str], scheme: str, N: int) -> list[Problem]:
+    """The problems of task files on ``scheme`` and ``N`` intervals: their body, laws, weights,
+    horizon and initial guess."""
+    problems = []
+    for path in paths:
+        kw = load_task_file(path).as_solve_kwargs()
+        problems.append(
+            build_problem(
+                kw["task"],
+                scheme,
+                N=N,
+                T=float(kw.get("T", 5.0)),
+                model=kw["model"],
+                foot=kw["foot"],
+                contact=kw["contact"],
+                guess=kw.get("guess", DEFAULT_GUESS),
+                foot_margin=kw.get("foot_margin"),
+            )
+        )
+    return problems
+
+
 def cmd_check(args) -> int:
-    tasks = [args.task] if args.task else ["T1", "T2", "T3", "T4"]
+    if args.task_file and not args.sensitivities:
+        raise ValueError("--task-file: only with --sensitivities")
+    if args.task and args.task_file:
+        raise ValueError("--task, --task-file: give one of them")
+    tasks: list = [args.task] if args.task else ["T1", "T2", "T3", "T4"]
     if args.sensitivities:
         scheme = f"{args.scheme or 'A,F+C'},1S"
+        if args.task_file:
+            tasks = _file_problems(args.task_file, scheme, args.N or 15)
         rows, outs = sensitivity_table(tasks, scheme, N=args.N or 15, eps=args.eps)
         results = {"rows": rows, "results": outs}
     else:
@@ -491,6 +519,9 @@ def build_parser() -> argparse.ArgumentParser:
         "(1S, every parameter group)",
     )
     p.add_argument("--eps", type=float, default=1e-5, help="finite-difference step of --sensitivities (relative)")
+    p.add_argument(
+        "--task-file", nargs="+", default=None, help="with --sensitivities: task files instead of the built-in tasks"
+    )
     p.add_argument(
         "--out", default=None, help="also write the rows (with --sensitivities: and the full results) as JSON"
     )
