@@ -36,6 +36,7 @@ import dataclasses
 import functools
 import pathlib
 import tempfile
+from typing import NamedTuple
 
 import numpy as np
 from _bench import show_table, write
@@ -47,16 +48,26 @@ from jaxhumanoid.studies import run
 from jaxhumanoid.studies.compare import OBJ_RTOL
 from jaxhumanoid.studies.spec import load_spec
 
-VARIANTS = {  # stage-1 options, scaling, factor on the strengths u_max in stage 1, initial guess
-    "default": ({}, "none", 1.0, strat.DEFAULT_GUESS),
-    "adaptive": ({"mu_strategy": "adaptive"}, "none", 1.0, strat.DEFAULT_GUESS),
-    "physical": ({}, "physical", 1.0, strat.DEFAULT_GUESS),
-    "adaptive+physical": ({"mu_strategy": "adaptive"}, "physical", 1.0, strat.DEFAULT_GUESS),
-    "warm": ({"mu_init": 1e-3, "bound_push": 1e-6, "bound_frac": 1e-6}, "none", 1.0, strat.DEFAULT_GUESS),
-    "strength x1.5": ({}, "none", 1.5, strat.DEFAULT_GUESS),
-    "strength x2": ({}, "none", 2.0, strat.DEFAULT_GUESS),
-    "linear guess": ({}, "none", 1.0, "linear"),
-    "mu_init 0.1": ({"mu_init": 0.1}, "none", 1.0, strat.DEFAULT_GUESS),
+
+class Variant(NamedTuple):
+    """Stage-1 options, scaling, factor on the strengths u_max in stage 1, and initial guess."""
+
+    options: dict = {}
+    scaling: str = "none"
+    strength: float = 1.0
+    guess: str = strat.DEFAULT_GUESS
+
+
+VARIANTS = {
+    "default": Variant(),
+    "adaptive": Variant(options={"mu_strategy": "adaptive"}),
+    "physical": Variant(scaling="physical"),
+    "adaptive+physical": Variant(options={"mu_strategy": "adaptive"}, scaling="physical"),
+    "warm": Variant(options={"mu_init": 1e-3, "bound_push": 1e-6, "bound_frac": 1e-6}),
+    "strength x1.5": Variant(strength=1.5),
+    "strength x2": Variant(strength=2.0),
+    "linear guess": Variant(guess="linear"),
+    "mu_init 0.1": Variant(options={"mu_init": 0.1}),
 }
 
 

@@ -269,10 +269,10 @@ def sensitivity_table(
     whose reduced KKT matrix is singular, gives one failing row (the message under ``"error"``)."""
     rows, outs = [], []
     for task in tasks:
-        problem = task if isinstance(task, Problem) else None
-        key, sch, n = (task, scheme, N)
-        if problem is not None:
-            key, sch, n = problem.task.key, str(problem.scheme), problem.layout.N
+        if isinstance(task, Problem):
+            problem, key, sch, n = task, task.task.key, str(task.scheme), task.layout.N
+        else:
+            problem, key, sch, n = None, task, scheme, N
         try:
             out = check_against_fd(key, sch, n, T=T, eps=eps, seed=seed, verbose=verbose, problem=problem)
         except (RuntimeError, np.linalg.LinAlgError) as err:  # a failed solve or a singular reduced KKT matrix
