@@ -88,20 +88,28 @@ class ActiveSet:
 
 
 def implied_bounds(problem) -> np.ndarray:
-    """(n,) variables whose box bounds are implied by equality constraints and never active.
+    """(2, n) bounds implied by equality constraints and never active: row 0 the lower bounds,
+    row 1 the upper ones.
 
     Under scheme A the contact-force variables equal the contact law (f = f_law(q, qd)), whose
     normal force is > 0 and whose friction force is bounded by mu f_n: the bounds f_n >= 0 and
-    |f| <= CONTACT_FORCE_LIMIT are redundant. For a contact in the air f_law is ~1e-40, i.e. at
-    the bound f_n >= 0 within IPOPT's bound relaxation, and IPOPT reports z_l = mu / 1e-8 there
-    (a barrier artefact that vanishes as mu -> 0, not an active bound); treating such a bound
-    as active makes the reduced KKT matrix singular (the law row loses all free entries).
+    |f_t| <= f_max are redundant, and so is f_n <= f_max for the wide box
+    ``CONTACT_FORCE_LIMIT``, but not for a task's ``contact_force_limit``, which the optimum may
+    meet. For a contact in the air f_law is ~1e-40, i.e. at the bound f_n >= 0 within IPOPT's
+    bound relaxation, and IPOPT reports z_l = mu / 1e-8 there (a barrier artefact that vanishes
+    as mu -> 0, not an active bound); treating such a bound as active makes the reduced KKT
+    matrix singular (the law row loses all free entries).
     """
     layout = problem.layout
-    mask = np.zeros((layout.N + 1, layout.s), dtype=bool)
+    lower = np.zeros((layout.N + 1, layout.s), dtype=bool)
+    upper = np.zeros_like(lower)
     if layout.augmented:
-        mask[:, layout.stage_slices()["f"]] = True
-    return mask[layout.free_mask()]
+        f = layout.stage_slices()["f"]
+        lower[:, f] = upper[:, f] = True
+        if problem.task.contact_force_limit is not None:
+            upper[:, f.start + 1 : f.stop : 2] = False  # f_n <= the task's limit
+    free = layout.free_mask()
+    return np.stack([lower[free], upper[free]])
 
 
 def _side(finite, mult, slack, sc_tol):
@@ -129,13 +137,15 @@ def identify_active_set(
 ) -> ActiveSet:
     """Active bounds and inequalities from IPOPT's multipliers and slacks (see the module doc).
 
-    x, z_l, z_u: (n,); g_val, lam_g: (m,). ``ignore_bounds``: (n,) mask of variables whose bounds
-    are known to be redundant (``implied_bounds``); they are never active.
+    x, z_l, z_u: (n,); g_val, lam_g: (m,). ``ignore_bounds``: bounds known to be redundant
+    (``implied_bounds``), never active: an (n,) mask of variables (both bounds) or a (2, n) one
+    (lower, upper).
     """
     x, g_val, lam_g = np.asarray(x), np.asarray(g_val), np.asarray(lam_g)
     z_l, z_u = np.asarray(z_l), np.asarray(z_u)
-    keep = np.ones(x.shape, dtype=bool) if ignore_bounds is None else ~np.asarray(ignore_bounds, dtype=bool)
-    lo_fin, up_fin = np.isfinite(bounds.xl) & keep, np.isfinite(bounds.xu) & keep
+    ignore = np.zeros((2,) + x.shape, dtype=bool) if ignore_bounds is None else np.asarray(ignore_bounds, dtype=bool)
+    ignore = np.broadcast_to(ignore, (2,) + x.shape)
+    lo_fin, up_fin = np.isfinite(bounds.xl) & ~ignore[0], np.isfinite(bounds.xu) & ~ignore[1]
     lo_a, lo_w, lo_m, lo_s = _side(lo_fin, z_l, x - bounds.xl, sc_tol)
     up_a, up_w, up_m, up_s = _side(up_fin, z_u, bounds.xu - x, sc_tol)
     eq = np.isfinite(bounds.gl) & (bounds.gl == bounds.gu)

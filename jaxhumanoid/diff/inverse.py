@@ -22,7 +22,7 @@ from jaxhumanoid.diff.kkt import KKTSensitivity
 from jaxhumanoid.diff.resolve import continuation_solve, reference_solve, resolve
 from jaxhumanoid.diff.trees import rel_err, zeros_like_params
 from jaxhumanoid.ocp.nlp import Bounds
-from jaxhumanoid.strategy.problem import build_problem
+from jaxhumanoid.strategy.problem import Problem, build_problem
 
 
 def weight_names(n: int) -> tuple[str, ...]:
@@ -305,7 +305,7 @@ class WeightFit:
 
 
 def fit_task_weights(
-    task="T1",
+    task: str | Problem = "T1",
     N: int = 15,
     T: float = 5.0,
     scheme: str = "A,F+C,1S",
@@ -317,11 +317,14 @@ def fit_task_weights(
     """One inverse experiment: x_data = x*(w_true) by ``reference_solve`` with the task's weights,
     then a fit from ``perturbed_weights(w_true, seed)`` by ``method`` (``gn``: ``gauss_newton``,
     at most ``max_evals`` (default 30) solves; ``lbfgs``: ``lbfgs``, default 80). Returns the
-    JSON-able ``WeightFit.summary`` with the settings, the wall time and the loss history."""
+    JSON-able ``WeightFit.summary`` with the settings, the wall time and the loss history.
+    ``task``: a key, or a built ``Problem`` (a task file's), whose scheme, grid and horizon then
+    replace ``scheme``, ``N`` and ``T``."""
     if method not in ("gn", "lbfgs"):
         raise ValueError(f"method: {method!r} not in ('gn', 'lbfgs')")
     t_start = time.perf_counter()
-    prob = build_problem(task, scheme, N=N, T=T)
+    prob = task if isinstance(task, Problem) else build_problem(task, scheme, N=N, T=T)
+    scheme, N = str(prob.scheme), prob.layout.N
     data = reference_solve(prob, tol=1e-10, verbose=verbose)
     w_true = np.asarray(prob.p.weights, dtype=float)
     fit = WeightFit(prob, data.x, perturbed_weights(w_true, seed), verbose=verbose)

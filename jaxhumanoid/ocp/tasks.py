@@ -110,7 +110,9 @@ class Task:
     set F of the F+C scheme (joints in 1..n, Figs. 5-8); ``q_min``/``q_max``: joint ranges (n,)
     replacing the body's (``PlanarChain.q_min``/``q_max``) when given; ``goal_tolerance``: the
     half-width of the terminal box around the goal (rad, Sec. II-G); ``key``: a short name
-    (default ``name``), e.g. ``T1`` for the paper's tasks."""
+    (default ``name``), e.g. ``T1`` for the paper's tasks; ``contact_force_limit``: the largest
+    normal force any body contact may carry, in body weights M g (a bound on the contact-force
+    variables of scheme A; None: only the wide box ``CONTACT_FORCE_LIMIT``)."""
 
     name: str
     start: np.ndarray
@@ -121,6 +123,7 @@ class Task:
     q_max: np.ndarray | None = None
     goal_tolerance: float = GOAL_TOLERANCE
     key: str = ""
+    contact_force_limit: float | None = None
 
     def __post_init__(self):
         if not isinstance(self.name, str) or not self.name:
@@ -129,6 +132,9 @@ class Task:
         tol = self.goal_tolerance
         if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not np.isfinite(tol) or tol < 0:
             raise ValueError(f"Task.goal_tolerance: expected a finite half-width >= 0 (rad), got {tol!r}")
+        cap = self.contact_force_limit
+        if cap is not None and (isinstance(cap, bool) or not isinstance(cap, (int, float)) or not 0 < cap < np.inf):
+            raise ValueError(f"Task.contact_force_limit: expected a positive number of body weights, got {cap!r}")
         if not isinstance(self.weights, Weights):
             raise ValueError(f"Task.weights: expected a Weights, got {type(self.weights).__name__}")
         start = _posture("Task", "start", self.start)
@@ -149,6 +155,13 @@ class Task:
     def n(self) -> int:
         """Number of joints of the chain the task is posed for."""
         return self.start.size
+
+    def force_box(self, model: PlanarChain) -> float:
+        """The bound (N) on |f| of every contact-force variable: ``contact_force_limit`` body
+        weights of ``model``, else ``CONTACT_FORCE_LIMIT``."""
+        if self.contact_force_limit is None:
+            return CONTACT_FORCE_LIMIT
+        return float(self.contact_force_limit) * float(np.sum(model.m)) * float(model.g)
 
     def joint_ranges(self, model: PlanarChain) -> tuple[np.ndarray, np.ndarray]:
         """(q_min, q_max), (n,) each: the task's own ranges where given, else the body's."""

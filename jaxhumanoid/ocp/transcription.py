@@ -285,9 +285,11 @@ def default_params(
     )
 
 
-def bounds_full(layout: Layout, goal, q_min, q_max, u_max, goal_tol=tasks_mod.GOAL_TOLERANCE):
+def bounds_full(
+    layout: Layout, goal, q_min, q_max, u_max, goal_tol=tasks_mod.GOAL_TOLERANCE, f_max=tasks_mod.CONTACT_FORCE_LIMIT
+):
     """Lower/upper bounds in the full layout (N+1, s): joint ranges q_min/q_max (n,), goal box,
-    torque box [-u_max, u_max] (n,) and force box."""
+    torque box [-u_max, u_max] (n,) and force box: f_t in [-f_max, f_max], f_n in [0, f_max] (N)."""
     sl = layout.stage_slices()
     lo = np.full((layout.N + 1, layout.s), -np.inf)
     hi = np.full((layout.N + 1, layout.s), np.inf)
@@ -297,8 +299,8 @@ def bounds_full(layout: Layout, goal, q_min, q_max, u_max, goal_tol=tasks_mod.GO
     u_max = np.asarray(u_max, dtype=float)
     lo[:, sl["u"]], hi[:, sl["u"]] = -u_max, u_max
     if layout.augmented:
-        lo[:, sl["f"]] = np.tile([-tasks_mod.CONTACT_FORCE_LIMIT, 0.0], len(layout.active))
-        hi[:, sl["f"]] = tasks_mod.CONTACT_FORCE_LIMIT
+        lo[:, sl["f"]] = np.tile([-f_max, 0.0], len(layout.active))
+        hi[:, sl["f"]] = f_max
     return lo, hi
 
 

@@ -25,7 +25,7 @@ from jaxhumanoid.progress import IterationLine, Progress
 from jaxhumanoid.runtime import enable_compilation_cache, writable_dir
 from jaxhumanoid.solvers import ipopt_capi
 from jaxhumanoid.strategy.posture import find_equilibrium
-from jaxhumanoid.strategy.problem import DEFAULT_GUESS, GUESSES, Problem, build_problem, stage_problem
+from jaxhumanoid.strategy.problem import DEFAULT_GUESS, GUESSES, Problem, problem_from_settings, stage_problem
 from jaxhumanoid.strategy.solution import Solution
 from jaxhumanoid.strategy.solve import DEFAULT_HANDOVER, DEFAULT_STAGE1_SOLVER, HANDOVERS, solve
 from jaxhumanoid.strategy.taskfile import load_task_file, solve_kwargs, task_files
@@ -135,6 +135,8 @@ def solve_arguments(args) -> dict:
     settings.update({k: getattr(args, k) for k in SOLVE_DEFAULTS if getattr(args, k) is not None})
     if getattr(args, "foot_margin", None) is not None:
         base["foot_margin"] = FootMargin(*args.foot_margin)
+    if getattr(args, "contact_force_limit", None) is not None:
+        base["task"] = dataclasses.replace(get_task(base["task"]), contact_force_limit=args.contact_force_limit)
     return {**base, **settings}
 
 
@@ -303,25 +305,8 @@ def cmd_track(args) -> int:
 
 
 def _file_problems(paths: list[str], scheme: str, N: int) -> list[Problem]:
-    """The problems of task files on ``scheme`` and ``N`` intervals: their body, laws, weights,
-    horizon and initial guess."""
-    problems = []
-    for path in paths:
-        kw = load_task_file(path).as_solve_kwargs()
-        problems.append(
-            build_problem(
-                kw["task"],
-                scheme,
-                N=N,
-                T=float(kw.get("T", 5.0)),
-                model=kw["model"],
-                foot=kw["foot"],
-                contact=kw["contact"],
-                guess=kw.get("guess", DEFAULT_GUESS),
-                foot_margin=kw.get("foot_margin"),
-            )
-        )
-    return problems
+    """The problems of task files on ``scheme`` and ``N`` intervals."""
+    return [problem_from_settings(load_task_file(path).as_solve_kwargs(), scheme, N) for path in paths]
 
 
 def cmd_check(args) -> int:
@@ -444,6 +429,14 @@ def build_parser() -> argparse.ArgumentParser:
         metavar=("LOAD", "FRICTION", "COP"),
         help="keep the foot inside (5): a load (body weights), a fraction of the friction cone unused, the "
         "centre of pressure COP m from toe and heel (default 0 0 0; overrides a task file's [foot_margin])",
+    )
+    p.add_argument(
+        "--contact-force-limit",
+        type=float,
+        default=None,
+        metavar="MG",
+        help="cap every body contact's normal force at MG body weights (scheme A; overrides a task file's "
+        "[task] contact_force_limit)",
     )
     p.add_argument("--out", default="out/solve")
     p.add_argument("--animate", action="store_true", help="also write animation.gif")

@@ -105,6 +105,11 @@ def build_problem(
     scheme = parse_scheme(scheme)
     if guess not in GUESSES:
         raise ValueError(f"guess: {guess!r} not in {GUESSES}")
+    if task.contact_force_limit is not None and not scheme.augmented:
+        raise ValueError(
+            f"Task.contact_force_limit: bounds the contact-force variables of scheme A; scheme {scheme} has none "
+            "(use an A scheme or leave the limit unset)"
+        )
     if not isinstance(N, (int, np.integer)) or N < 3:
         raise ValueError(f"N: expected an integer number of intervals >= 3, got {N!r}")
     if not np.isfinite(T) or T <= 0:
@@ -126,7 +131,9 @@ def build_problem(
         p = dataclasses.replace(p, q_start=q_start)
     nlp = _cached_nlp(layout)
     q_min, q_max = task.joint_ranges(p.model)
-    lo, hi = tr.bounds_full(layout, task.goal, q_min, q_max, np.asarray(p.model.u_max), task.goal_tolerance)
+    lo, hi = tr.bounds_full(
+        layout, task.goal, q_min, q_max, np.asarray(p.model.u_max), task.goal_tolerance, task.force_box(p.model)
+    )
     free = layout.free_mask()
     kinds = np.tile(layout.constraint_kinds(), layout.N)
     xl, xu = lo[free], hi[free]
@@ -164,3 +171,21 @@ def stage_problem(
     pseudo-static problem (8) of stage 1 with the relaxed law (``ContactParams.relaxed``)."""
     contact = ContactParams.relaxed() if pseudo_static else None
     return build_problem(task, scheme, N=N, pseudo_static=pseudo_static, contact=contact, model=model, foot=foot)
+
+
+def problem_from_settings(settings: dict, scheme: str, N: int) -> Problem:
+    """The problem of a task's ``solve`` keyword arguments (a task file's ``as_solve_kwargs``, a
+    study case's) on ``scheme`` and ``N`` intervals: their task, body, laws, weights, horizon,
+    initial guess and foot margin (the solver settings are not part of the problem)."""
+    return build_problem(
+        settings["task"],
+        scheme,
+        N=N,
+        T=float(settings.get("T") or 5.0),
+        model=settings.get("model"),
+        foot=settings.get("foot"),
+        contact=settings.get("contact"),
+        weights=settings.get("weights"),
+        guess=settings.get("guess", DEFAULT_GUESS),
+        foot_margin=settings.get("foot_margin"),
+    )

@@ -19,6 +19,8 @@
     start_deg = [...]; goal_deg = [...]  # postures (or start/goal in rad), n each
     active = [1, 3]                      # the joints that may carry contact forces
     goal_tolerance = 0.05                # rad, half-width of the terminal box (optional)
+    contact_force_limit = 2.0            # body weights: cap on every body contact's normal force
+                                         #   (optional; scheme A only)
     q_min_deg = [...]; q_max_deg = [...] # optional, replace the body's ranges
     [weights]  w_u = 1e-3; w_qd = 1.0; w_dqd = 2e-2; w_du = 1e-5  # optional
     [solve]    scheme = "A,F+C,2S"; solver = "ipopt"; N = 60; T = 4.0; N1 = 20    # optional
@@ -81,6 +83,7 @@ TABLES = {
         "q_min_deg",
         "q_max_deg",
         "goal_tolerance",
+        "contact_force_limit",
     },
     "weights": {"w_u", "w_qd", "w_dqd", "w_du"},
     "solve": {"scheme", "solver", "N", "T", "N1", "guess", "handover", "stage1_solver", "scaling"},
@@ -223,6 +226,7 @@ def load_task_file(path) -> TaskFile:
             q_max=_angles(where, t, "q_max", model.n),
             goal_tolerance=float(t.get("goal_tolerance", tasks.GOAL_TOLERANCE)),
             key=str(data.get("key", "")),
+            contact_force_limit=t.get("contact_force_limit"),
         )
     except (TypeError, ValueError) as err:
         raise ValueError(f"{path}: {err}") from err

@@ -25,6 +25,7 @@ from jaxhumanoid.model.params import ContactParams, PlanarChain
 from jaxhumanoid.ocp.tasks import Task, get_task
 from jaxhumanoid.runtime import enable_compilation_cache
 from jaxhumanoid.strategy.posture import find_equilibrium
+from jaxhumanoid.strategy.problem import Problem, problem_from_settings
 from jaxhumanoid.strategy.solve import solve
 from jaxhumanoid.strategy.taskfile import load_task_file
 from jaxhumanoid.studies.spec import Case, draw_rng
@@ -36,7 +37,8 @@ SOLVE_DEFAULTS = {"N": 100, "T": 5.0}
 
 def base_problem(case: Case) -> dict[str, Any]:
     """The keyword arguments of ``solve`` for the unperturbed task: a paper key, or a task file's
-    body, laws, options and settings (N, T, N1 and scaling of the file unless the case sets them)."""
+    body, laws, options and settings (N, T, N1 and scaling of the file unless the case sets them),
+    the task with the case's ``contact_force_limit`` where it sets one."""
     if case.task_path is None:
         kwargs: dict[str, Any] = {"task": get_task(case.task), "model": None, "contact": None, "options": None}
     else:
@@ -49,6 +51,8 @@ def base_problem(case: Case) -> dict[str, Any]:
     kwargs["options"] = {**(kwargs.get("options") or {}), **dict(case.options)} or None
     if case.scaling is not None:
         kwargs["scaling"] = case.scaling
+    if case.contact_force_limit is not None:
+        kwargs["task"] = dataclasses.replace(kwargs["task"], contact_force_limit=case.contact_force_limit)
     return kwargs
 
 
@@ -143,10 +147,13 @@ def solve_case(case: Case, out_dir: pathlib.Path) -> dict[str, Any]:
 
 
 def inverse_case(case: Case, out_dir: pathlib.Path) -> dict[str, Any]:
-    """One weight fit from the random start ``case.start_seed`` (``fit_task_weights``); the full
-    result goes to ``out_dir/cases/<id>/fit.json``."""
+    """One weight fit from the random start ``case.start_seed`` (``fit_task_weights``) on the case's
+    task, a key or a task file; the full result goes to ``out_dir/cases/<id>/fit.json``."""
+    task: str | Problem = case.task
+    if case.task_path is not None:  # a task file: its body, laws, weights and guess
+        task = problem_from_settings(base_problem(case), case.scheme, int(case.N or 15))
     fit = fit_task_weights(
-        case.task,
+        task,
         int(case.N or 15),
         float(case.T or 5.0),
         case.scheme,

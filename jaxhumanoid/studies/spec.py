@@ -9,6 +9,7 @@
     T = [5.0]                             # default: the task file's, else 5
     N1 = [10]                             # stage-1 intervals of 2S (default min(30, N))
     scaling = "physical"                  # the NLPs' units (``ocp.scaling.SCALINGS``; default the task's)
+    contact_force_limit = 2.0             # cap on every body contact's normal force (M g; default the task's)
     save = true                           # write each solution to DIR/cases/<id>/ (default true)
     [options]                             # solver options of every case (optional)
     tol = 1e-8
@@ -77,7 +78,7 @@ DISTRIBUTIONS = ("uniform", "log_uniform", "choice")
 METHODS = ("gn", "lbfgs")
 TOP_KEYS = {
     "solve": {"name", "kind", "tasks", "schemes", "solvers", "N", "T", "N1", "scaling", "save", "options", "grid"}
-    | {"random"},
+    | {"random", "contact_force_limit"},
     "inverse": {"name", "kind", "tasks", "schemes", "N", "T", "methods", "starts", "seeds", "max_evals"}
     | {"recovery_rtol"},
 }
@@ -109,6 +110,7 @@ class Case:
     T: float | None
     N1: int | None = None
     scaling: str | None = None
+    contact_force_limit: float | None = None
     options: tuple[tuple[str, Any], ...] = ()
     factors: tuple[tuple[str, float], ...] = ()
     start_offset: tuple[float, ...] | None = None
@@ -124,13 +126,15 @@ class Case:
     task_path: str | None = dataclasses.field(default=None, compare=False)
 
     def params(self, with_solver: bool = True) -> dict[str, Any]:
-        """The canonical parameters (everything but ``task_path``, ``save`` and an unset ``scaling``,
-        so that a case's id does not change where the spec leaves the scaling to the task)."""
+        """The canonical parameters (everything but ``task_path``, ``save`` and an unset ``scaling``
+        or ``contact_force_limit``, so that a case's id does not change where the spec leaves them
+        to the task)."""
         d = dataclasses.asdict(self)
         d.pop("task_path")
         d.pop("save")
-        if self.scaling is None:
-            d.pop("scaling")
+        for key in ("scaling", "contact_force_limit"):
+            if d[key] is None:
+                d.pop(key)
         d["options"] = dict(self.options)
         d["factors"] = dict(self.factors)
         if not with_solver:
@@ -320,6 +324,9 @@ def _solve_cases(data: Mapping, base: pathlib.Path) -> tuple[list[Case], tuple[s
     scaling = data.get("scaling")
     if scaling is not None and scaling not in SCALINGS:
         raise ValueError(f"scaling: expected one of {SCALINGS}, got {scaling!r}")
+    cap = data.get("contact_force_limit")
+    if cap is not None:
+        cap = float(_positive("contact_force_limit", cap))
     options = data.get("options", {})
     if not isinstance(options, dict):
         raise ValueError(f"options: expected a table of solver options, got {options!r}")
@@ -351,6 +358,7 @@ def _solve_cases(data: Mapping, base: pathlib.Path) -> tuple[list[Case], tuple[s
                     T=float(drawn.get("T", T)) if drawn.get("T", T) is not None else None,
                     N1=N1,
                     scaling=scaling,
+                    contact_force_limit=cap,
                     options=tuple(sorted(options.items())),
                     factors=tuple(sorted(factors.items())),
                     start_offset=drawn.get("start_offset"),
@@ -368,8 +376,6 @@ def _solve_cases(data: Mapping, base: pathlib.Path) -> tuple[list[Case], tuple[s
 
 def _inverse_cases(data: Mapping, base: pathlib.Path) -> list[Case]:
     tasks = [_task(f"tasks[{i}]", t, base) for i, t in enumerate(_list("tasks", data["tasks"], str))]
-    if any(path is not None for _, path, _, _ in tasks):
-        raise ValueError(f"tasks: an inverse study takes the paper's tasks {tuple(TASKS)}")
     schemes = _list("schemes", data.get("schemes", ["A,F+C,1S"]), str)
     for s in schemes:
         if parse_scheme(s).stages != 1:
@@ -387,7 +393,7 @@ def _inverse_cases(data: Mapping, base: pathlib.Path) -> list[Case]:
     if max_evals is not None:
         _positive("max_evals", max_evals, integer=True)
     cases = []
-    for (key, _, _, _), scheme, N, T, method, seed in itertools.product(tasks, schemes, Ns, Ts, methods, seeds):
+    for (key, path, _, _), scheme, N, T, method, seed in itertools.product(tasks, schemes, Ns, Ts, methods, seeds):
         cases.append(
             Case(
                 kind="inverse",
@@ -399,6 +405,7 @@ def _inverse_cases(data: Mapping, base: pathlib.Path) -> list[Case]:
                 method=method,
                 start_seed=seed,
                 max_evals=max_evals,
+                task_path=path,
             )
         )
     return cases

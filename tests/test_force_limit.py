@@ -1,0 +1,99 @@
+"""A task's contact-force limit: its bounds and checks, a solve that meets it, and the sensitivities
+of an optimum where it is active."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+import jaxhumanoid as jh
+from jaxhumanoid.diff import active_set, fd
+from jaxhumanoid.diff import kkt as kkt_mod
+from jaxhumanoid.ocp.tasks import CONTACT_FORCE_LIMIT, get_task
+from jaxhumanoid.outputs.cli import build_parser, solve_arguments
+from jaxhumanoid.strategy.problem import build_problem
+from jaxhumanoid.strategy.taskfile import load_task_file
+from jaxhumanoid.studies import parse_spec
+from jaxhumanoid.studies.run import base_problem
+
+CAP = 0.8  # body weights: below the 1.33 M g of T1's A,F+C,1S optimum at N = 15
+
+
+def capped(key="T1", cap=CAP):
+    return dataclasses.replace(get_task(key), contact_force_limit=cap)
+
+
+def force_bounds(problem):
+    lo, hi = (problem.full(b) for b in (problem.bounds.xl, problem.bounds.xu))
+    f = problem.layout.stage_slices()["f"]
+    return lo[:-1, f].reshape(-1, 2), hi[:-1, f].reshape(-1, 2)  # (f_t, f_n) per contact and node
+
+
+def test_the_limit_bounds_every_contact_force_in_body_weights_of_the_body():
+    body = jh.PlanarChain.humanoid()
+    heavy = dataclasses.replace(body, m=np.asarray(body.m) * 1.2, inertia=np.asarray(body.inertia) * 1.2)
+    weight = float(np.sum(body.m)) * body.g
+    lo, hi = force_bounds(build_problem(capped(), "A,F+C,1S", N=8))
+    assert np.allclose(hi, CAP * weight) and np.allclose(lo[:, 0], -CAP * weight) and np.all(lo[:, 1] == 0.0)
+    _, hi_heavy = force_bounds(build_problem(capped(), "A,F+C,1S", N=8, model=heavy))
+    assert np.allclose(hi_heavy, 1.2 * CAP * weight)
+    _, hi_free = force_bounds(build_problem(get_task("T1"), "A,F+C,1S", N=8))
+    assert np.all(hi_free == CONTACT_FORCE_LIMIT)
+
+
+@pytest.mark.parametrize("cap", [0.0, -1.0, float("inf"), True, "2"])
+def test_a_bad_limit_is_refused_with_its_field(cap):
+    with pytest.raises(ValueError, match="Task.contact_force_limit"):
+        capped(cap=cap)
+
+
+def test_a_scheme_without_force_variables_refuses_the_limit_before_any_work():
+    with pytest.raises(ValueError, match="contact_force_limit.*scheme E,F,1S has none"):
+        jh.solve(capped(), "E,F,1S", N=8)
+
+
+def test_the_limit_reaches_the_problem_from_a_task_file_the_command_line_and_a_study(tmp_path):
+    path = tmp_path / "t.toml"
+    path.write_text(
+        'name = "capped"\n[task]\nstart = [1.6, 0.0, 0.0, -3.1, -0.2]\ngoal = [3.2, -0.2, -0.3, -4.5, -1.3]\n'
+        "active = [1, 4, 5]\ncontact_force_limit = 1.5\n"
+    )
+    assert load_task_file(path).task.contact_force_limit == 1.5
+    path.write_text(path.read_text().replace("1.5", "-2"))
+    with pytest.raises(ValueError, match=r"t.toml.*contact_force_limit"):
+        load_task_file(path)
+    args = build_parser().parse_args(["solve", "--task", "T3", "--contact-force-limit", "2"])
+    assert solve_arguments(args)["task"] == dataclasses.replace(get_task("T3"), contact_force_limit=2.0)
+    spec = {"tasks": ["T3"], "schemes": ["A,F+C,1S"], "N": [10]}
+    (plain,), (case,) = parse_spec(spec).cases, parse_spec({**spec, "contact_force_limit": 2.0}).cases
+    assert "contact_force_limit" not in plain.params() and case.id != plain.id
+    assert base_problem(case)["task"].contact_force_limit == 2.0 and base_problem(plain)["task"] == get_task("T3")
+    with pytest.raises(ValueError, match="contact_force_limit"):
+        parse_spec({**spec, "contact_force_limit": 0})
+
+
+@pytest.fixture(scope="module")
+def capped_optimum():
+    problem = build_problem(capped(), "A,F+C,1S", N=15)
+    return problem, jh.solve(capped(), "A,F+C,1S", N=15)
+
+
+def test_a_solve_meets_the_limit_where_the_free_optimum_exceeds_it(capped_optimum):
+    _, sol = capped_optimum
+    assert sol.success
+    peak = sol.peaks()["contact_normal_force_body_weights"]
+    assert peak <= CAP * (1 + 1e-6) and peak >= CAP * (1 - 1e-3)  # active
+
+
+def test_sensitivities_with_the_limit_active_match_finite_differences(capped_optimum, monkeypatch):
+    problem, _ = capped_optimum
+    lower, upper = active_set.implied_bounds(problem)
+    assert lower.sum() == 2 * upper.sum()  # f_n's limit is a real bound, its lower one stays implied
+    out = fd.check_against_fd(problem=problem, groups=("weights",), verbose=False)
+    assert all(r["ok"] for r in fd.table_rows(out))
+    # mutation: the limit taken as implied (never active) like the wide box
+    monkeypatch.setattr(kkt_mod, "implied_bounds", lambda p: np.stack([lower, lower]))
+    bad = fd.check_against_fd(problem=problem, groups=("weights",), verbose=False)
+    assert not all(r["ok"] for r in fd.table_rows(bad))
