@@ -77,10 +77,11 @@ class WeightFit:
     unknown) and ``lbfgs`` (scipy L-BFGS-B on the loss and its ``jax.vjp`` through
     ``make_solve``: one solve and one adjoint per evaluation).
 
-    Both are local. From ``perturbed_weights(w, seed=0)`` they recover the weights on T1-T4
-    (N = 15). From ``seed=1`` (factors 0.28, 0.21, 2.4, 4.9, 0.34, 0.31, 4.5) Gauss-Newton
-    fails on all four: it lowers the loss (T1 19.9 -> 8.2, T2 71 -> 46, T3 8.1 -> 4.8, T4
-    28 -> 6.5) by driving one weight towards 0 (w_u5 on T1-T3, w_dqd on T4), and on T3 its
+    Both are local. From ``perturbed_weights(w, seed=0)`` they recover the weights on the
+    paper's posing of T1-T4 (``examples/paper/``, N = 15). From ``seed=1`` (factors 0.28, 0.21,
+    2.4, 4.9, 0.34, 0.31, 4.5) Gauss-Newton fails on all four: it lowers the loss (T1 49 -> 32,
+    T2 71 -> 46, T3 8.1 -> 4.8, T4 29 -> 6.5), on T2-T4 by driving one weight towards 0 (w_u5 on
+    T2 and T3, w_dqd on T4), and on T3 its
     trial steps jump from loss 6.5 to 16 where the followed branch ends. The first solve is
     not the cause: on T2 and T3 it equals the data's branch continued from the true weights.
     """
