@@ -14,7 +14,6 @@ from jaxhumanoid.diff import kkt as kkt_mod
 from jaxhumanoid.ocp.tasks import CONTACT_FORCE_LIMIT, get_task
 from jaxhumanoid.outputs.cli import build_parser, solve_arguments
 from jaxhumanoid.strategy.problem import build_problem
-from jaxhumanoid.strategy.solve import stage_one_problem
 from jaxhumanoid.strategy.taskfile import load_task_file
 from jaxhumanoid.studies import parse_spec
 from jaxhumanoid.studies.run import base_problem
@@ -42,12 +41,6 @@ def test_the_limit_bounds_every_contact_force_in_body_weights_of_the_body():
     assert np.allclose(hi_heavy, 1.2 * CAP * weight)
     _, hi_free = force_bounds(build_problem(get_task("T1"), "A,F+C,1S", N=8))
     assert np.all(hi_free == CONTACT_FORCE_LIMIT)
-
-
-def test_stage_one_of_2s_leaves_the_limit_out():
-    final = build_problem(capped(), "A,F+C,2S", N=20)
-    _, hi = force_bounds(stage_one_problem(capped(), "A,F+C,2S", final, 10))
-    assert np.all(hi == CONTACT_FORCE_LIMIT) and np.all(force_bounds(final)[1] < CONTACT_FORCE_LIMIT)
 
 
 @pytest.mark.parametrize("cap", [0.0, -1.0, float("inf"), True, "2"])
