@@ -281,13 +281,11 @@ def with_law(problem: Problem, law: ContactParams) -> Problem:
 def stage_one_problem(task, scheme, final: Problem, N1: int, contact_stage1=None, guess: str = "linear") -> Problem:
     """Stage 1 of 2S for the final problem ``final``: the pseudo-static problem (8) on N1 intervals
     under ``contact_stage1`` (default ``ContactParams.relaxed()``), from the start posture re-seated
-    for that law, with the final problem's horizon, weights, body and foot, and initial ``guess``.
-    The task's ``contact_force_limit`` is left out: without inertia a quasi-static motion can need
-    more force than the dynamic one, and stage 1 is a warm start (docs/results.md)."""
+    for that law, with the final problem's horizon, weights, body and foot, and initial ``guess``."""
     law = ContactParams.relaxed() if contact_stage1 is None else contact_stage1
     q_start1, _ = reseat_for_contact(final.p, final.p.q_start, final.layout.active, law)
     return build_problem(
-        dataclasses.replace(get_task(task), contact_force_limit=None),
+        task,
         scheme,
         N=N1,
         T=float(final.p.T),
