@@ -20,6 +20,7 @@ from jaxhumanoid import get_task
 from jaxhumanoid.model.params import PlanarChain
 from jaxhumanoid.outputs.cli import main as cli_main
 from jaxhumanoid.strategy.posture import margins
+from jaxhumanoid.strategy.problem import problem_from_settings
 from jaxhumanoid.studies import Crash, Outcome, Spec, agreement, load_spec, parse_spec, read_table, run_jobs, sweep
 from jaxhumanoid.studies.compare import problem_agreement
 from jaxhumanoid.studies.engines import plan_queues
@@ -111,6 +112,14 @@ def test_bad_fields_are_rejected_naming_the_field(change, field):
         data = {k: v for k, v in data.items() if k not in ("grid", "solvers")}
     with pytest.raises(ValueError, match="^" + re.escape(field)):
         parse_spec(data)
+
+
+def test_an_inverse_study_fits_on_task_files_with_their_posing():
+    spec = load_spec(ROOT / "examples" / "studies" / "inverse_multistart.toml")
+    case = spec.cases[0]
+    assert case.kind == "inverse" and case.task_path is not None and case.task_path.endswith("T1.toml")
+    problem = problem_from_settings(base_problem(case), case.scheme, int(case.N))
+    assert problem.layout.N == 15 and np.all(problem.model.u_max == 1000.0)  # the paper's box, not a strength
 
 
 def test_a_spec_file_error_names_the_file(tmp_path):
