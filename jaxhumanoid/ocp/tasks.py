@@ -161,7 +161,7 @@ class Task:
         weights of ``model``, else ``CONTACT_FORCE_LIMIT``."""
         if self.contact_force_limit is None:
             return CONTACT_FORCE_LIMIT
-        return float(self.contact_force_limit) * float(np.sum(model.m)) * float(model.g)
+        return float(self.contact_force_limit) * float(model.total_mass) * float(model.g)
 
     def joint_ranges(self, model: PlanarChain) -> tuple[np.ndarray, np.ndarray]:
         """(q_min, q_max), (n,) each: the task's own ranges where given, else the body's."""

@@ -119,6 +119,18 @@ void lu_solve(const double (&A)[nx][nx], const int (&piv)[nx], double* B, int ld
   }
 }
 
+// M T1 for rows M (m, nz): the columns "other" of M plus its force columns times F (f = F z_other)
+template <int m>
+void substitute_forces(const double (*M)[nz], const double (*F)[no], double (*out)[no]) {
+  for (int i = 0; i < m; ++i) {
+    for (int b = 0; b < no; ++b) out[i][b] = M[i][zo(b)];
+    for (int q = 0; q < nf; ++q) {
+      const double a = M[i][f0 + q];
+      for (int b = 0; b < no; ++b) out[i][b] += a * F[q][b];
+    }
+  }
+}
+
 // factorisation of all N intervals (backward), storing in st what the solve needs
 void riccati_factor(int64_t N, const double* Hs, const double* Gs, const double* Ss, const double* Fs,
                     const double* Ds, Stage* st, double* P0, double* Ls, double* Ks, int32_t* ok) {
@@ -142,13 +154,7 @@ void riccati_factor(int64_t N, const double* Hs, const double* Gs, const double*
       for (int q = 0; q < nf; ++q) s.Htf[i][q] = Ht[i][f0 + q];
     // R = Ht T1 = Ht[:, o] + Ht[:, f] F ;  H1 = R[o, :] + F^T R[f, :]
     double R[nz][no];
-    for (int i = 0; i < nz; ++i) {
-      for (int b = 0; b < no; ++b) R[i][b] = Ht[i][zo(b)];
-      for (int q = 0; q < nf; ++q) {
-        const double a = Ht[i][f0 + q];
-        for (int b = 0; b < no; ++b) R[i][b] += a * F[q][b];
-      }
-    }
+    substitute_forces<nz>(Ht, F, R);
     double H1[no][no];
     for (int a = 0; a < no; ++a) {
       for (int b = 0; b < no; ++b) H1[a][b] = R[zo(a)][b];
@@ -161,13 +167,7 @@ void riccati_factor(int64_t N, const double* Hs, const double* Gs, const double*
       for (int j = 0; j < nx; ++j) s.H1x[a][j] = H1[a][nxu + j];
     // D1 = D[:, o] + D[:, f] F ;  E = D1[:, x'] ;  X = -E^{-1} D1[:, v]
     double D1[nx][no];
-    for (int i = 0; i < nx; ++i) {
-      for (int b = 0; b < no; ++b) D1[i][b] = D[i][zo(b)];
-      for (int q = 0; q < nf; ++q) {
-        const double a = D[i][f0 + q];
-        for (int b = 0; b < no; ++b) D1[i][b] += a * F[q][b];
-      }
-    }
+    substitute_forces<nx>(D, F, D1);
     for (int i = 0; i < nx; ++i) {
       for (int j = 0; j < nx; ++j) s.LU[i][j] = D1[i][nxu + j];
       for (int m = 0; m < nxu; ++m) s.X[i][m] = -D1[i][m];
