@@ -19,6 +19,7 @@ sweep`` draws them: ``studies.run.solve_case``), and only its stage 1 runs: the 
                         a warm start: the final problem keeps the strengths)
     linear guess        the linear initial guess first instead of the inverse-dynamics one (the fallbacks
                         then try the inverse-dynamics guess)
+    static path         the static-path guess (``ocp.static_path``): postures the body can hold at rest
     mu_init 0.1         IPOPT's default initial barrier parameter instead of 1e-2
 
 Per variant: the largest constraint violation of stage 1's start, the first run's success and
@@ -67,6 +68,7 @@ VARIANTS = {
     "strength x1.5": Variant(strength=1.5),
     "strength x2": Variant(strength=2.0),
     "linear guess": Variant(guess="linear"),
+    "static path": Variant(guess="static_path"),
     "mu_init 0.1": Variant(options={"mu_init": 0.1}),
 }
 

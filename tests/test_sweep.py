@@ -56,16 +56,17 @@ def test_ids_are_hashes_of_the_parameters():
     assert len({c.id for c in two}) == 4
 
 
-def test_a_spec_scaling_reaches_the_solve_and_an_unset_one_keeps_the_ids():
+@pytest.mark.parametrize("key, value", [("scaling", "physical"), ("guess", "static_path")])
+def test_a_spec_setting_reaches_the_solve_and_an_unset_one_keeps_the_ids(key, value):
     (a, _) = parse_spec(TINY).cases
-    (scaled, _) = parse_spec({**TINY, "scaling": "physical"}).cases
+    (scaled, _) = parse_spec({**TINY, key: value}).cases
     # an unset scaling is not a parameter: the shipped robustness spec keeps its recorded ids
     recorded = {r["id"] for r in read_table(ROOT / "docs" / "studies" / "robustness_ipopt_ipm_cases.csv")}
     spec = select_cases(load_spec(ROOT / "examples" / "studies" / "robustness.toml"), solvers=("ipopt", "ipm"))
     assert {c.id for c in spec.cases} == recorded
     assert scaled.id != a.id and scaled.problem != a.problem
-    assert "scaling" not in a.params() and scaled.params()["scaling"] == "physical"
-    assert base_problem(scaled)["scaling"] == "physical" and "scaling" not in base_problem(a)
+    assert key not in a.params() and scaled.params()[key] == value
+    assert base_problem(scaled)[key] == value and key not in base_problem(a)
 
 
 def test_random_draws_are_reproducible_and_independent_of_their_number():
@@ -103,6 +104,7 @@ def test_random_draws_are_reproducible_and_independent_of_their_number():
         ({"random": {"start_deg": "2"}}, "random.start_deg"),
         ({"kind": "table"}, "kind"),
         ({"scaling": "si"}, "scaling"),
+        ({"guess": "zero"}, "guess"),
         ({"kind": "inverse", "methods": ["newton"], "grid": None}, "methods"),
     ],
 )

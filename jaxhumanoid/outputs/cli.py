@@ -401,7 +401,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--guess",
         default=None,
         choices=list(GUESSES),
-        help="initial guess: inverse_dynamics (default; torques and forces that satisfy its dynamics) or linear",
+        help="initial guess: inverse_dynamics (default; torques and forces that satisfy its dynamics), linear, "
+        "or static_path (postures the body can hold at rest, where a path of them is found)",
     )
     p.add_argument(
         "--handover",

@@ -11,12 +11,13 @@ import numpy as np
 from jaxhumanoid.derivatives.stagewise import stagewise_nlp
 from jaxhumanoid.model.foot import FootMargin
 from jaxhumanoid.model.params import ContactParams, FootParams, PlanarChain
+from jaxhumanoid.ocp import static_path
 from jaxhumanoid.ocp import tasks as tasks_mod
 from jaxhumanoid.ocp import transcription as tr
 from jaxhumanoid.ocp.nlp import NLP, Bounds
 from jaxhumanoid.ocp.scheme import Scheme, parse_scheme
 
-GUESSES = ("linear", "inverse_dynamics")
+GUESSES = ("linear", "inverse_dynamics", "static_path")
 # The default guess: with u and f from the inverse dynamics, stage 1 and coarse 1S solves of the
 # strength-limited tasks converge where the linear guess ends infeasible (docs/results.md).
 DEFAULT_GUESS = "inverse_dynamics"
@@ -98,8 +99,9 @@ def build_problem(
     posture (used by the 2S stage 1 re-seating). ``guess`` is the initial guess (``GUESSES``):
     ``"linear"``, Sec. II-G's q linear from start to goal with u and f zero; ``"inverse_dynamics"``
     (default), the same motion with u and f that satisfy its dynamics and force rows
-    (``transcription.inverse_dynamics_guess``). ``foot_margin`` tightens the steady-foot rows (5)
-    (``model.foot.FootMargin``; default none).
+    (``transcription.inverse_dynamics_guess``); ``"static_path"``, that motion's postures moved to
+    ones the body can hold at rest (``ocp.static_path``), else the inverse-dynamics guess.
+    ``foot_margin`` tightens the steady-foot rows (5) (``model.foot.FootMargin``; default none).
     """
     task = tasks_mod.get_task(task)
     scheme = parse_scheme(scheme)
@@ -130,15 +132,12 @@ def build_problem(
             raise ValueError(f"q_start: expected shape ({n},), got {q_start.shape}")
         p = dataclasses.replace(p, q_start=q_start)
     nlp = _cached_nlp(layout)
-    q_min, q_max = task.joint_ranges(p.model)
-    lo, hi = tr.bounds_full(
-        layout, task.goal, q_min, q_max, np.asarray(p.model.u_max), task.goal_tolerance, task.force_box(p.model)
-    )
+    lo, hi = _bounds_full(task, layout, p)
     free = layout.free_mask()
     kinds = np.tile(layout.constraint_kinds(), layout.N)
     xl, xu = lo[free], hi[free]
     bounds = Bounds(
-        x0=np.clip(initial_guess(layout, p, task.goal, guess), xl, xu),
+        x0=np.clip(initial_guess(layout, p, task, guess), xl, xu),
         xl=xl,
         xu=xu,
         gl=np.zeros(nlp.m),
@@ -147,20 +146,29 @@ def build_problem(
     return Problem(task, scheme, layout, nlp, bounds, p)
 
 
-def initial_guess(layout: tr.Layout, p: tr.OCPParams, goal, guess: str) -> np.ndarray:
-    """The NLP vector of ``guess`` (``GUESSES``) from p's start posture to ``goal`` over p.T, before
-    clipping to the bounds."""
-    Z0 = tr.initial_guess_full(layout, np.asarray(p.q_start), np.asarray(goal), float(p.T))
+def _bounds_full(task: tasks_mod.Task, layout: tr.Layout, p: tr.OCPParams):
+    """The task's bounds in the full layout (``transcription.bounds_full``) for the body of p."""
+    q_min, q_max = task.joint_ranges(p.model)
+    return tr.bounds_full(
+        layout, task.goal, q_min, q_max, np.asarray(p.model.u_max), task.goal_tolerance, task.force_box(p.model)
+    )
+
+
+def initial_guess(layout: tr.Layout, p: tr.OCPParams, task: tasks_mod.Task, guess: str) -> np.ndarray:
+    """The NLP vector of ``guess`` (``GUESSES``) from p's start posture to the task's goal over p.T,
+    before clipping to the bounds."""
+    Z0 = tr.initial_guess_full(layout, np.asarray(p.q_start), np.asarray(task.goal), float(p.T))
     if guess == "inverse_dynamics":
         Z0 = np.asarray(tr.inverse_dynamics_guess(layout, Z0, p))
+    elif guess == "static_path":
+        lo, hi = _bounds_full(task, layout, p)
+        Z0 = static_path.static_path_guess(layout, Z0, p, lo, hi, task.force_box(p.model))[0]
     return np.asarray(Z0)[layout.free_mask()]
 
 
 def with_guess(problem: Problem, guess: str) -> Problem:
     """``problem`` started from another initial guess (``GUESSES``); the NLP is the same."""
-    x0 = np.clip(
-        initial_guess(problem.layout, problem.p, problem.task.goal, guess), problem.bounds.xl, problem.bounds.xu
-    )
+    x0 = np.clip(initial_guess(problem.layout, problem.p, problem.task, guess), problem.bounds.xl, problem.bounds.xu)
     return dataclasses.replace(problem, bounds=dataclasses.replace(problem.bounds, x0=x0))
 
 

@@ -24,9 +24,9 @@
     q_min_deg = [...]; q_max_deg = [...] # optional, replace the body's ranges
     [weights]  w_u = 1e-3; w_qd = 1.0; w_dqd = 2e-2; w_du = 1e-5  # optional
     [solve]    scheme = "A,F+C,2S"; solver = "ipopt"; N = 60; T = 4.0; N1 = 20    # optional
-               guess = "inverse_dynamics"  # or "linear" (default): the initial guess
-               handover = "continuation"   # or "direct" (default): stage 1 to stage 2
-               stage1_solver = "ipopt"     # the solver of the relaxed-law stages (default: solver)
+               guess = "static_path"       # or "inverse_dynamics" (default), "linear": the initial guess
+               handover = "direct"         # or "continuation" (default): stage 1 to stage 2
+               stage1_solver = "same"      # or "ipopt" (default): the solver of the relaxed-law stages
                scaling = "physical"        # or "none" (default): the NLPs in units of O(1)
     [options]  tol = 1e-8                # solver options, optional
 

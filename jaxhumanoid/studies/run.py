@@ -37,7 +37,7 @@ SOLVE_DEFAULTS = {"N": 100, "T": 5.0}
 
 def base_problem(case: Case) -> dict[str, Any]:
     """The keyword arguments of ``solve`` for the unperturbed task: a paper key, or a task file's
-    body, laws, options and settings (N, T, N1 and scaling of the file unless the case sets them),
+    body, laws, options and settings (N, T, N1, scaling and guess of the file unless the case sets them),
     the task with the case's ``contact_force_limit`` where it sets one."""
     if case.task_path is None:
         kwargs: dict[str, Any] = {"task": get_task(case.task), "model": None, "contact": None, "options": None}
@@ -49,8 +49,9 @@ def base_problem(case: Case) -> dict[str, Any]:
         value = getattr(case, key)
         kwargs[key] = value if value is not None else kwargs.get(key, SOLVE_DEFAULTS.get(key))
     kwargs["options"] = {**(kwargs.get("options") or {}), **dict(case.options)} or None
-    if case.scaling is not None:
-        kwargs["scaling"] = case.scaling
+    for key in ("scaling", "guess"):
+        if getattr(case, key) is not None:
+            kwargs[key] = getattr(case, key)
     if case.contact_force_limit is not None:
         kwargs["task"] = dataclasses.replace(kwargs["task"], contact_force_limit=case.contact_force_limit)
     return kwargs

@@ -9,6 +9,7 @@
     T = [5.0]                             # default: the task file's, else 5
     N1 = [10]                             # stage-1 intervals of 2S (default min(30, N))
     scaling = "physical"                  # the NLPs' units (``ocp.scaling.SCALINGS``; default the task's)
+    guess = "static_path"                 # the first stage's initial guess (``GUESSES``; default the task's)
     contact_force_limit = 2.0             # cap on every body contact's normal force (M g; default the task's)
     save = true                           # write each solution to DIR/cases/<id>/ (default true)
     [options]                             # solver options of every case (optional)
@@ -56,6 +57,7 @@ from jaxhumanoid.ocp.scaling import SCALINGS
 from jaxhumanoid.ocp.scheme import parse_scheme
 from jaxhumanoid.ocp.tasks import TASKS, get_task
 from jaxhumanoid.runtime import read_toml
+from jaxhumanoid.strategy.problem import GUESSES
 from jaxhumanoid.strategy.solve import SOLVERS
 from jaxhumanoid.strategy.taskfile import load_task_file
 
@@ -78,7 +80,7 @@ DISTRIBUTIONS = ("uniform", "log_uniform", "choice")
 METHODS = ("gn", "lbfgs")
 TOP_KEYS = {
     "solve": {"name", "kind", "tasks", "schemes", "solvers", "N", "T", "N1", "scaling", "save", "options", "grid"}
-    | {"random", "contact_force_limit"},
+    | {"random", "contact_force_limit", "guess"},
     "inverse": {"name", "kind", "tasks", "schemes", "N", "T", "methods", "starts", "seeds", "max_evals"}
     | {"recovery_rtol"},
 }
@@ -111,6 +113,7 @@ class Case:
     N1: int | None = None
     scaling: str | None = None
     contact_force_limit: float | None = None
+    guess: str | None = None
     options: tuple[tuple[str, Any], ...] = ()
     factors: tuple[tuple[str, float], ...] = ()
     start_offset: tuple[float, ...] | None = None
@@ -126,13 +129,13 @@ class Case:
     task_path: str | None = dataclasses.field(default=None, compare=False)
 
     def params(self, with_solver: bool = True) -> dict[str, Any]:
-        """The canonical parameters (everything but ``task_path``, ``save`` and an unset ``scaling``
-        or ``contact_force_limit``, so that a case's id does not change where the spec leaves them
-        to the task)."""
+        """The canonical parameters (everything but ``task_path``, ``save`` and an unset ``scaling``,
+        ``contact_force_limit`` or ``guess``, so that a case's id does not change where the spec
+        leaves them to the task)."""
         d = dataclasses.asdict(self)
         d.pop("task_path")
         d.pop("save")
-        for key in ("scaling", "contact_force_limit"):
+        for key in ("scaling", "contact_force_limit", "guess"):
             if d[key] is None:
                 d.pop(key)
         d["options"] = dict(self.options)
@@ -324,6 +327,9 @@ def _solve_cases(data: Mapping, base: pathlib.Path) -> tuple[list[Case], tuple[s
     scaling = data.get("scaling")
     if scaling is not None and scaling not in SCALINGS:
         raise ValueError(f"scaling: expected one of {SCALINGS}, got {scaling!r}")
+    guess = data.get("guess")
+    if guess is not None and guess not in GUESSES:
+        raise ValueError(f"guess: expected one of {GUESSES}, got {guess!r}")
     cap = data.get("contact_force_limit")
     if cap is not None:
         cap = float(_positive("contact_force_limit", cap))
@@ -359,6 +365,7 @@ def _solve_cases(data: Mapping, base: pathlib.Path) -> tuple[list[Case], tuple[s
                     N1=N1,
                     scaling=scaling,
                     contact_force_limit=cap,
+                    guess=guess,
                     options=tuple(sorted(options.items())),
                     factors=tuple(sorted(factors.items())),
                     start_offset=drawn.get("start_offset"),
