@@ -68,7 +68,7 @@ def interval_rows(layout: tr.Layout, p: tr.OCPParams, f_max: float, q_a, q_b):
     return jnp.concatenate(parts)
 
 
-@functools.cache
+@functools.lru_cache(maxsize=16)
 def _compiled(layout: tr.Layout, f_max: float):
     """Jitted rows over all intervals of a path, and the rows and their Jacobians in q_a and q_b."""
     rows = functools.partial(interval_rows, layout)

@@ -73,8 +73,10 @@ def _cached_nlp(layout: tr.Layout) -> NLP:
 
 
 def clear_nlp_cache() -> None:
-    """Forget the NLPs built so far (and the compiled programs they own)."""
+    """Forget the NLPs built so far (and the compiled programs they own), and the static-path
+    guess's compiled rows."""
     _cached_nlp.cache_clear()
+    static_path._compiled.cache_clear()
 
 
 def build_problem(
