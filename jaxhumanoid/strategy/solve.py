@@ -469,7 +469,7 @@ def solve(
         model=model,
         contact=contact,
         foot=foot,
-        guess=guess,
+        guess=guess if scheme.stages == 1 else "linear",  # 2S: the dynamic stages start from stage 1's solution
         foot_margin=foot_margin,
     )
     setup_final = time.perf_counter() - t0
