@@ -88,3 +88,22 @@ def test_stage_one_converges_from_the_path():
     assert nonlinear_violation(problem) <= sp.TOL * float(problem.model.total_mass) * 9.81
     result = solve_ipopt(problem.nlp, problem.p, problem.bounds, options=STAGE1_DEFAULTS)
     assert result.success, result.status
+
+
+def test_two_stage_solves_compute_the_path_for_stage_one_only(monkeypatch):
+    from jaxhumanoid.strategy import solve as strategy
+
+    grids = []
+    original = sp.static_path_guess
+    monkeypatch.setattr(
+        sp, "static_path_guess", lambda layout, *a, **k: grids.append(layout.N) or original(layout, *a, **k)
+    )
+
+    def stage_one_only(task, scheme, solver, final, N1, *a):
+        stage_one_problem(task, scheme, final, N1, guess="static_path")
+        raise StopIteration
+
+    monkeypatch.setattr(strategy, "_stage_one", stage_one_only)
+    with pytest.raises(StopIteration):
+        strategy.solve("T1", "A,F+C,2S", N=40, guess="static_path")
+    assert grids == [N1]  # the final grid's problem starts from stage 1's solution: no path for it
