@@ -14,7 +14,7 @@ model at the interval's midpoint, with the torques and forces its inverse static
     c_k >= 0,   q_min <= q_{k+1} <= q_max  (the goal box at k + 1 = N)
 
 Two sweeps, each node chosen by SLSQP as the admissible posture nearest to an even share of the
-rest of the way (a node already admissible is kept as is):
+rest of the way (a target that is admissible already is taken as is):
 
     forward:  q_{k+1} for k = 1..N-1 towards the goal, from q_1 = q_0
     backward: q_k for k = N-1..2 towards the start, from the goal box's centre
@@ -42,6 +42,7 @@ from jaxhumanoid.model import dynamics as dyn
 from jaxhumanoid.model import foot as ft
 from jaxhumanoid.model import kinematics as kin
 from jaxhumanoid.ocp import transcription as tr
+from jaxhumanoid.ocp.tasks import CONTACT_FORCE_LIMIT
 
 TOL = 1e-3  # worst row (body weights, fractions of the strengths, metres) a path may violate
 
@@ -61,7 +62,7 @@ def interval_rows(layout: tr.Layout, p: tr.OCPParams, f_max: float, q_a, q_b):
         (u_max - u) / u_max,
         (u_max + u) / u_max,
     ]
-    if layout.augmented and f_max < tr.tasks_mod.CONTACT_FORCE_LIMIT:
+    if layout.augmented and f_max < CONTACT_FORCE_LIMIT:
         parts += [(f_max - f.ravel()) / weight, (f_max + f.ravel()) / weight]
     if layout.clear_joints:
         parts.append(kin.contact_gaps(p.model, p.foot, q_b)[jnp.asarray(layout.clear_joints) - 1])
@@ -119,7 +120,10 @@ def _sweeps(layout: tr.Layout, p: tr.OCPParams, f_max: float, Q, lo, hi) -> tupl
 def _join(layout: tr.Layout, p: tr.OCPParams, f_max: float, F, B) -> tuple[np.ndarray, float]:
     """F up to node m, B after it, for the m in 1..N-1 whose worst row is least; (path, worst)."""
     along = _compiled(layout, f_max)[0]
-    worst = lambda Q_a, Q_b: -np.min(np.asarray(along(p, Q_a, Q_b)), axis=1)  # noqa: E731
+
+    def worst(Q_a, Q_b):
+        return -np.min(np.asarray(along(p, Q_a, Q_b)), axis=1)
+
     w_f, w_b, w_join = worst(F[:-1], F[1:]), worst(B[:-1], B[1:]), worst(F[:-1], B[1:])
     N = layout.N
     # worst over the intervals of the joined path: F's intervals < m, the join m, B's intervals > m
