@@ -139,7 +139,7 @@ def build_problem(
     kinds = np.tile(layout.constraint_kinds(), layout.N)
     xl, xu = lo[free], hi[free]
     bounds = Bounds(
-        x0=np.clip(initial_guess(layout, p, task, guess), xl, xu),
+        x0=np.clip(initial_guess(layout, p, task, guess, (lo, hi)), xl, xu),
         xl=xl,
         xu=xu,
         gl=np.zeros(nlp.m),
@@ -156,21 +156,25 @@ def _bounds_full(task: tasks_mod.Task, layout: tr.Layout, p: tr.OCPParams):
     )
 
 
-def initial_guess(layout: tr.Layout, p: tr.OCPParams, task: tasks_mod.Task, guess: str) -> np.ndarray:
+def initial_guess(layout: tr.Layout, p: tr.OCPParams, task: tasks_mod.Task, guess: str, bounds_full) -> np.ndarray:
     """The NLP vector of ``guess`` (``GUESSES``) from p's start posture to the task's goal over p.T,
-    before clipping to the bounds."""
+    before clipping to the bounds; ``bounds_full``: the (lo, hi) of ``_bounds_full``, which the
+    static path keeps to."""
     Z0 = tr.initial_guess_full(layout, np.asarray(p.q_start), np.asarray(task.goal), float(p.T))
     if guess == "inverse_dynamics":
         Z0 = np.asarray(tr.inverse_dynamics_guess(layout, Z0, p))
     elif guess == "static_path":
-        lo, hi = _bounds_full(task, layout, p)
+        lo, hi = bounds_full
         Z0 = static_path.static_path_guess(layout, Z0, p, lo, hi, task.force_box(p.model))[0]
     return np.asarray(Z0)[layout.free_mask()]
 
 
 def with_guess(problem: Problem, guess: str) -> Problem:
     """``problem`` started from another initial guess (``GUESSES``); the NLP is the same."""
-    x0 = np.clip(initial_guess(problem.layout, problem.p, problem.task, guess), problem.bounds.xl, problem.bounds.xu)
+    full = _bounds_full(problem.task, problem.layout, problem.p)
+    x0 = np.clip(
+        initial_guess(problem.layout, problem.p, problem.task, guess, full), problem.bounds.xl, problem.bounds.xu
+    )
     return dataclasses.replace(problem, bounds=dataclasses.replace(problem.bounds, x0=x0))
 
 
