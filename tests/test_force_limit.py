@@ -11,12 +11,14 @@ import pytest
 import jaxhumanoid as jh
 from jaxhumanoid.diff import active_set, fd
 from jaxhumanoid.diff import kkt as kkt_mod
+from jaxhumanoid.model.contact import contact_forces
 from jaxhumanoid.ocp.tasks import CONTACT_FORCE_LIMIT, get_task
 from jaxhumanoid.outputs.cli import build_parser, solve_arguments
 from jaxhumanoid.strategy.problem import build_problem
 from jaxhumanoid.strategy.taskfile import load_task_file
 from jaxhumanoid.studies import parse_spec
 from jaxhumanoid.studies.run import base_problem
+from jaxhumanoid.validation.checks import cross_validate
 
 CAP = 0.8  # body weights: below the 1.33 M g of T1's A,F+C,1S optimum at N = 15
 
@@ -49,9 +51,40 @@ def test_a_bad_limit_is_refused_with_its_field(cap):
         capped(cap=cap)
 
 
-def test_a_scheme_without_force_variables_refuses_the_limit_before_any_work():
-    with pytest.raises(ValueError, match="contact_force_limit.*scheme E,F,1S has none"):
-        jh.solve(capped(), "E,F,1S", N=8)
+def test_scheme_e_bounds_the_law_normal_force_of_each_contact_by_a_row():
+    weight = float(np.sum(jh.PlanarChain.humanoid().m)) * jh.PlanarChain.humanoid().g
+    plain, limited = (build_problem(t, "E,F,1S", N=8) for t in (get_task("T1"), capped()))
+    k = len(limited.layout.active)
+    assert limited.nlp.m == plain.nlp.m + 8 * k and plain.layout.n_force_rows == 0
+    rows = limited.layout.constraint_kinds() == 2
+    assert rows.sum() == k and np.all(rows[-k:])
+    gl, gu = (b.reshape(8, -1)[:, rows] for b in (limited.bounds.gl, limited.bounds.gu))
+    assert np.all(gl == -np.inf) and np.allclose(gu, CAP * weight)
+    # the rows are the law's normal forces at the midpoints, and the other rows are unchanged
+    x = limited.bounds.x0
+    g_lim = np.asarray(limited.nlp.g(x, limited.p)).reshape(8, -1)
+    g_plain = np.asarray(plain.nlp.g(x, plain.p)).reshape(8, -1)
+    assert np.array_equal(g_lim[:, ~rows], g_plain)
+    Z = np.asarray(limited.full(x))
+    qbar = 0.5 * (Z[:-1, :5] + Z[1:, :5])
+    qdbar = 0.5 * (Z[:-1, 5:10] + Z[1:, 5:10])
+    p, active = limited.p, limited.layout.active
+    f_n = [contact_forces(p.model, p.foot, p.contact, a, b, active)[:, 1] for a, b in zip(qbar, qdbar)]
+    assert np.allclose(g_lim[:, rows], np.asarray(f_n), rtol=1e-12, atol=1e-9)
+
+
+def test_scheme_e_limit_rows_agree_with_the_casadi_backend():
+    rows = cross_validate(build_problem(capped(), "E,F,1S", N=6), points=2)
+    assert all(r.ok for r in rows), [r for r in rows if not r.ok]
+
+
+def test_a_scheme_e_solve_meets_the_limit_where_the_free_optimum_exceeds_it():
+    # T3's E,F,1S optimum at N = 15 pushes off at 0.60 M g; limited to 0.55 it converges with
+    # the limit active
+    sol = jh.solve(capped("T3", 0.55), "E,F,1S", N=15)
+    assert sol.success
+    peak = sol.peaks()["contact_normal_force_body_weights"]
+    assert 0.55 * (1 - 1e-3) <= peak <= 0.55 * (1 + 1e-6)
 
 
 def test_the_limit_reaches_the_problem_from_a_task_file_the_command_line_and_a_study(tmp_path):

@@ -67,6 +67,7 @@ def physical_scaling(layout: Layout, T: float) -> NLPScaling:
             np.full(layout.n_f, 1.0 / FORCE_UNIT),
             np.full(N_FOOT, 1.0 / FORCE_UNIT),
             np.full(len(layout.clear_joints), 1.0 / LENGTH_UNIT),
+            np.full(layout.n_force_rows, 1.0 / FORCE_UNIT),
         ]
     )
     return NLPScaling(obj=1.0 / OBJECTIVE_UNIT, x=np.ascontiguousarray(x), g=np.tile(row, layout.N))

@@ -112,7 +112,8 @@ class Task:
     half-width of the terminal box around the goal (rad, Sec. II-G); ``key``: a short name
     (default ``name``), e.g. ``T1`` for the paper's tasks; ``contact_force_limit``: the largest
     normal force any body contact may carry, in body weights M g (a bound on the contact-force
-    variables of scheme A; None: only the wide box ``CONTACT_FORCE_LIMIT``)."""
+    variables of scheme A; under scheme E a row per contact joint and interval bounds the law's
+    normal force (3) at the midpoint; None: only the wide box ``CONTACT_FORCE_LIMIT``)."""
 
     name: str
     start: np.ndarray

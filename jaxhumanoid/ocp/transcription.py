@@ -71,6 +71,9 @@ class Layout:
     clearance: bool
     pseudo_static: bool
     n_links: int
+    # scheme E's contact-force limit: one row per contact joint, its normal force f_n (3) at the
+    # midpoint, bounded above by the task's limit (scheme A bounds its force variables instead)
+    force_rows: bool = False
 
     def __post_init__(self):
         if not isinstance(self.n_links, (int, np.integer)) or self.n_links < 2:
@@ -92,9 +95,14 @@ class Layout:
         return tuple(i for i in range(1, self.n_links + 1) if i not in self.active) if self.clearance else ()
 
     @property
+    def n_force_rows(self) -> int:
+        """Normal-force rows per interval (``force_rows``)."""
+        return len(self.active) if self.force_rows else 0
+
+    @property
     def n_con(self) -> int:
         """Constraints per interval."""
-        return 2 * self.n_links + self.n_f + N_FOOT + len(self.clear_joints)
+        return 2 * self.n_links + self.n_f + N_FOOT + len(self.clear_joints) + self.n_force_rows
 
     def stage_slices(self) -> dict[str, slice]:
         """Columns of q, qd, u (n each) and f (n_f) in a stage of the full layout."""
@@ -111,8 +119,10 @@ class Layout:
         return free
 
     def constraint_kinds(self) -> np.ndarray:
-        """Per-interval constraint kinds: 0 equality, 1 inequality (>= 0)."""
-        return np.array([0] * (2 * self.n_links + self.n_f) + [1] * (N_FOOT + len(self.clear_joints)))
+        """Per-interval constraint kinds: 0 equality, 1 inequality (>= 0), 2 a normal force bounded
+        above by the task's contact-force limit (``force_rows``)."""
+        eq, ineq = 2 * self.n_links + self.n_f, N_FOOT + len(self.clear_joints)
+        return np.array([0] * eq + [1] * ineq + [2] * self.n_force_rows)
 
 
 def equilibrium_torques(p: OCPParams, q, active):
@@ -200,6 +210,8 @@ def interval_constraints_midpoint(layout: Layout, r, p: OCPParams):
     if layout.clear_joints:
         gaps = kin.contact_gaps(p.model, p.foot, q1)
         parts.append(gaps[jnp.asarray(layout.clear_joints) - 1])
+    if layout.force_rows:
+        parts.append(f_law[:, 1])  # f_n <= the contact-force limit (bounds of the NLP)
     return jnp.concatenate(parts)
 
 

@@ -436,7 +436,7 @@ def build_parser() -> argparse.ArgumentParser:
         type=float,
         default=None,
         metavar="MG",
-        help="cap every body contact's normal force at MG body weights (scheme A; overrides a task file's "
+        help="cap every body contact's normal force at MG body weights (overrides a task file's "
         "[task] contact_force_limit)",
     )
     p.add_argument("--out", default="out/solve")

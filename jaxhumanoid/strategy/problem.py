@@ -109,11 +109,6 @@ def build_problem(
     scheme = parse_scheme(scheme)
     if guess not in GUESSES:
         raise ValueError(f"guess: {guess!r} not in {GUESSES}")
-    if task.contact_force_limit is not None and not scheme.augmented:
-        raise ValueError(
-            f"Task.contact_force_limit: bounds the contact-force variables of scheme A; scheme {scheme} has none "
-            "(use an A scheme or leave the limit unset)"
-        )
     if not isinstance(N, (int, np.integer)) or N < 3:
         raise ValueError(f"N: expected an integer number of intervals >= 3, got {N!r}")
     if not np.isfinite(T) or T <= 0:
@@ -127,6 +122,7 @@ def build_problem(
         clearance=scheme.clearance,
         pseudo_static=bool(pseudo_static),
         n_links=n,
+        force_rows=task.contact_force_limit is not None and not scheme.augmented,
     )
     if q_start is not None:
         q_start = np.asarray(q_start, dtype=float)
@@ -142,8 +138,8 @@ def build_problem(
         x0=np.clip(initial_guess(layout, p, task, guess, (lo, hi)), xl, xu),
         xl=xl,
         xu=xu,
-        gl=np.zeros(nlp.m),
-        gu=np.where(kinds == 0, 0.0, np.inf),
+        gl=np.where(kinds == 2, -np.inf, 0.0),
+        gu=np.select([kinds == 0, kinds == 2], [0.0, task.force_box(p.model)], np.inf),
     )
     return Problem(task, scheme, layout, nlp, bounds, p)
 

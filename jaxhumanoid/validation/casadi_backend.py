@@ -184,7 +184,8 @@ def equilibrium_torques(nb: _Numbers, model: _Model, q, active) -> np.ndarray:
 
 
 def _interval(nb: _Numbers, model: _Model, layout, za, zb, last: bool):
-    """Constraints of interval k in our order ((6a), (6b) or (8), A-laws, (5), clearance) and its cost (7)."""
+    """Constraints of interval k in our order ((6a), (6b) or (8), A-laws, (5), clearance, scheme E's
+    normal forces) and its cost (7)."""
     h, n = nb.T / layout.N, nb.n
     # stage entries: q (n), qd (n), u (n), then the 2|F| contact forces
     q0, qd0, u, q1, qd1, u1 = za[0:n], za[n : 2 * n], za[2 * n : 3 * n], zb[0:n], zb[n : 2 * n], zb[2 * n : 3 * n]
@@ -211,6 +212,8 @@ def _interval(nb: _Numbers, model: _Model, layout, za, zb, last: bool):
     if layout.clear_joints:
         heights = model.joint_points(q1)[1, :]
         parts.append(ca.vertcat(*[heights[i - 1] for i in layout.clear_joints]))
+    if layout.force_rows:
+        parts.append(ca.vertcat(*[f[1] for f in laws]))  # f_n, bounded above by the force limit
     w = [float(v) for v in nb.weights]
     du = (u1 - u) * (0.0 if last else 1.0)
     w_u, w_qd, w_dqd, w_du = w[:n], w[n], w[n + 1], w[n + 2]
