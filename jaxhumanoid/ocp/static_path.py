@@ -62,7 +62,7 @@ def interval_rows(layout: tr.Layout, p: tr.OCPParams, f_max: float, q_a, q_b):
         (u_max - u) / u_max,
         (u_max + u) / u_max,
     ]
-    if (layout.augmented or layout.force_rows) and f_max < CONTACT_FORCE_LIMIT:
+    if f_max < CONTACT_FORCE_LIMIT:  # a task's limit, posed in every scheme
         parts += [(f_max - f.ravel()) / weight, (f_max + f.ravel()) / weight]
     if layout.clear_joints:
         parts.append(kin.contact_gaps(p.model, p.foot, q_b)[jnp.asarray(layout.clear_joints) - 1])
