@@ -1,8 +1,8 @@
-"""Benchmark: the grouped recursion over (q_k, qd_k, u_{k-1}) in JAX on T1's real stage-2 KKT
-matrices, against the block LDL^T, in one run.
+"""Benchmark: the grouped recursion over (q_k, qd_k, u_{k-1}) in JAX and compiled, on T1's real
+stage-2 KKT matrices, against the block LDL^T, in one run.
 
     OMP_NUM_THREADS=1 python scripts/bench_riccati_real.py [--repeats 30] [--data /tmp/bench_kkt_data.npz]
-        [--out results/bench_riccati_real.json]
+        [--out results/bench_riccati_real.json] [--md FILE] [--no-compiled]
 
 The order is ``study_riccati_order.py``'s "grouped" one: interval k = N-1, ..., 0 eliminates
 
@@ -26,12 +26,26 @@ the recursion's factorisation and one plain solve against ``kkt.factor`` and ``k
 (the block LDL^T's plain solve), on each matrix; checked: the inertia against ``kkt.factor``'s
 and the backward error (plain and after 3 refinements against K, in numpy) as
 ``study_riccati_order.py`` measures it.
+
+The same arithmetic compiled (``scripts/ffi/riccati_grouped.cc``, built on the fly with g++ -O3
+-march=native at the padded sizes, called through ctypes on the gathered numpy blocks; G3's
+inertia by Bunch-Kaufman) is checked and timed alongside: its factorisation includes the copy of
+the gathered blocks into its work buffer, timed alone as well. ``--no-compiled`` (or no g++)
+skips it.
 """
 
 from __future__ import annotations
 
 import argparse
 import collections
+import ctypes
+import os
+import pathlib
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
 
 import jax
 import jax.numpy as jnp
@@ -204,6 +218,64 @@ def structural_counts(ivals, idx, sizes) -> np.ndarray:
     return tot
 
 
+SOURCE = pathlib.Path(__file__).parent / "ffi" / "riccati_grouped.cc"
+
+
+def build_compiled(sizes, nC: int, workdir: str):
+    """Compile ``SOURCE`` at the padded sizes and load it (ctypes); None without g++."""
+    cxx = shutil.which(os.environ.get("CXX", "g++"))
+    if cxx is None:
+        print("g++ not found: the compiled recursion is skipped", file=sys.stderr)
+        return None
+    consts = [f"-DB1={sizes[0]}", f"-DB2={sizes[0] + sizes[1]}", f"-DNL={sum(sizes)}", f"-DNC={nC}"]
+    lib = pathlib.Path(workdir) / "libriccati_grouped.so"
+    cmd = [cxx, "-std=c++17", "-O3", "-march=native", "-shared", "-fPIC", *consts, str(SOURCE), "-o", str(lib)]
+    r = subprocess.run(cmd, capture_output=True, text=True)
+    if r.returncode != 0:
+        sys.exit(f"compilation failed:\n{' '.join(cmd)}\n{r.stderr}")
+    so = ctypes.CDLL(str(lib))
+    so.grouped_factor_c.restype = ctypes.c_int
+    so.grouped_factor_c.argtypes = [ctypes.c_int64] + [ctypes.c_void_p] * 5
+    so.grouped_solve_c.restype = None
+    so.grouped_solve_c.argtypes = [ctypes.c_int64] + [ctypes.c_void_p] * 5
+    return so
+
+
+class Compiled:
+    """The compiled recursion on numpy arrays: ``factor(M)`` (copies M into its work buffer)
+    and ``solve(rpad)``."""
+
+    def __init__(self, so, inpos, inmask, nL):
+        self.so, self.nL = so, nL
+        self.inpos = np.ascontiguousarray(inpos, np.int32)
+        self.inmask = np.ascontiguousarray(inmask, np.uint8)
+
+    def factor(self, M):
+        self.M = np.array(M, np.float64, order="C")
+        self.piv = np.zeros((M.shape[0], self.nL), np.int32)
+        self.cnt = np.zeros(3, np.int64)
+        ptr = [a.ctypes.data for a in (self.M, self.piv, self.inpos, self.inmask, self.cnt)]
+        self.singular = self.so.grouped_factor_c(M.shape[0], *ptr)
+        return self
+
+    def solve(self, rpad):
+        r = np.array(rpad, np.float64, order="C")
+        ptr = [a.ctypes.data for a in (self.M, self.piv, self.inpos, self.inmask, r)]
+        self.so.grouped_solve_c(r.shape[0], *ptr)
+        return r
+
+
+def median_ms(fns: dict, repeats: int) -> dict:
+    """Median ms of zero-argument numpy-level functions, called in alternation."""
+    ms: dict = {k: [] for k in fns}
+    for _ in range(repeats):
+        for k, f in fns.items():
+            t0 = time.perf_counter()
+            f()
+            ms[k].append((time.perf_counter() - t0) * 1e3)
+    return {k: float(np.median(v)) for k, v in ms.items()}
+
+
 def op_costs(repeats: int) -> dict:
     """ms per 100 scan steps of each operation one interval of the recursion runs (random data)."""
     rng = np.random.default_rng(0)
@@ -231,6 +303,7 @@ def main():
     ap.add_argument("--repeats", type=int, default=30)
     ap.add_argument("--out", default="results/bench_riccati_real.json")
     ap.add_argument("--md", default=None, help="also write the table here")
+    ap.add_argument("--no-compiled", action="store_true", help="skip the compiled recursion")
     args = ap.parse_args()
     D = make_data(args.data)
     n, m = int(D["n"]), int(D["m"])
@@ -251,6 +324,7 @@ def main():
         "G1 in the scan": jax.jit(make_recursion(sizes, nC, batched=False)[0]),
         "no inertia": jax.jit(make_recursion(sizes, nC, inertia=False)[0]),
     }
+    so = None if args.no_compiled else build_compiled(sizes, nC, tempfile.mkdtemp())
     k_fac = jax.jit(lambda A, B: kkt.factor(st, A, B))
     k_sol = jax.jit(lambda fac, B, r: kkt.solve_vec(st, fac, kkt.border_coupling(st, fac, B), r))
     jin, jmask = jnp.asarray(inpos), jnp.asarray(inmask)
@@ -261,26 +335,46 @@ def main():
         for dw, dc in ((0.0, 1e-9), (1e-4, 1e-9)):
             args_k = (D[f"{label}_hess"], D[f"{label}_jac"], D[f"{label}_dx"] + dw, D[f"{label}_dc"] - dc)
             Ks = sparse_kkt(D, *args_k).tocsr()
-            M = jnp.asarray(gather(Ks, idx, nL))
+            Mnp = gather(Ks, idx, nL)
+            M = jnp.asarray(Mnp)
             r = rng.normal(size=n + m)
-            rpad = jnp.asarray(np.where(real, r[np.maximum(idx[:, :nL], 0)], 0.0))
+            rpad_np = np.where(real, r[np.maximum(idx[:, :nL], 0)], 0.0)
+            rpad = jnp.asarray(rpad_np)
             fac = f_fac(M, jin, jmask)
-
-            def apply(rr, fac=fac):
-                rp = jnp.asarray(np.where(real, rr[np.maximum(idx[:, :nL], 0)], 0.0))
-                xp = np.asarray(f_sol(fac, rp, jin, jmask))
-                x = np.zeros(n + m)
-                x[idx[:, :nL][real]] = xp[real]
-                return x
-
             sc = ruiz(Ks)
             Ke = (Ks.multiply(sc[:, None]).multiply(sc[None, :])).tocsr()
-            u = apply(r)
-            berr = [backward_error(Ke, sc, u, r)]
-            for _ in range(3):
-                u = u + apply(r - Ks @ u)
-                berr.append(backward_error(Ke, sc, u, r))
+
+            def refined(solve_pad, r=r, Ks=Ks, Ke=Ke, sc=sc):
+                """Backward errors of the plain solve and after 1..3 refinements against K."""
+
+                def apply(rr):
+                    xp = solve_pad(np.where(real, rr[np.maximum(idx[:, :nL], 0)], 0.0))
+                    x = np.zeros(n + m)
+                    x[idx[:, :nL][real]] = xp[real]
+                    return x
+
+                u = apply(r)
+                berr = [backward_error(Ke, sc, u, r)]
+                for _ in range(3):
+                    u = u + apply(r - Ks @ u)
+                    berr.append(backward_error(Ke, sc, u, r))
+                return berr
+
+            berr = refined(lambda rp, fac=fac: np.asarray(f_sol(fac, jnp.asarray(rp), jin, jmask)))
             inertia = tuple(int(v) for v in base + np.asarray(fac[2]))
+            timed = {}
+            if so is not None:
+                comp = Compiled(so, inpos, inmask, nL).factor(Mnp)
+                c_inertia = tuple(int(v) for v in base + comp.cnt)
+                c_berr = refined(comp.solve)
+                x_jax, x_c = np.asarray(f_sol(fac, rpad, jin, jmask)), comp.solve(rpad_np)
+                c_diff = float(np.max(np.abs(x_c - x_jax)) / np.max(np.abs(x_jax)))
+                work = Compiled(so, inpos, inmask, nL)
+                timed = {
+                    "compiled_factor": lambda work=work, Mnp=Mnp: (work.factor(Mnp), None)[1],
+                    "compiled_copy_of_M": lambda Mnp=Mnp: (np.array(Mnp, order="C"), None)[1],
+                    "compiled_solve": lambda comp=comp, rp=rpad_np: (comp.solve(rp), None)[1],
+                }
             A, B = kkt.assemble(st, *(jnp.asarray(a) for a in args_k))
             kf = k_fac(A, B)
             ref = (int(kf.npos), int(kf.nneg), int(kf.nzero))
@@ -292,11 +386,16 @@ def main():
                     "recursion_solve": lambda fac=fac: f_sol(fac, rpad, jin, jmask),
                     "block_ldl_solve": lambda kf=kf, B=B: k_sol(kf, B, rb),
                     **{f"recursion_factor, {k}": (lambda M=M, f=f: f(M, jin, jmask)) for k, f in variants.items()},
+                    **timed,
                 },
                 args.repeats,
             )
             rec = {"matrix": label, "delta_w": dw, "delta_c": dc, "inertia": inertia, "block_ldl_inertia": ref}
             rec |= {"same_inertia": inertia == ref, "backward_error": berr, "median_ms": ms}
+            if so is not None:
+                rec["compiled"] = {"inertia": c_inertia, "same_inertia": c_inertia == ref, "backward_error": c_berr}
+                rec["compiled"] |= {"singular_blocks": comp.singular, "max_rel_diff_to_jax": c_diff}
+                print("compiled:", rec["compiled"], flush=True)
             records.append(rec)
             row = [label, f"{dw:g}", f"{dc:g}", "yes" if inertia == ref else f"NO {inertia} vs {ref}"]
             row += [f"{berr[0]:.0e} / {berr[-1]:.0e}"]
