@@ -20,7 +20,7 @@ holding 1 on the diagonal), so that the recursion is one ``lax.scan`` of fixed s
     S_k = the trailing block on C_k
 
 The inertia is that of the pivot blocks: G1 and G2 are pairs [[A, E^T], [E, 0]] with E square,
-(nv, nv) whatever A; G3's comes from the eigenvalues of its (symmetric) block. The solve is a
+(nv, nv) whatever A; G3's comes from the eigenvalues of its diagonally scaled congruent. The solve is a
 forward scan (k descending) and a backward scan (k ascending). What is timed, in alternation:
 the recursion's factorisation and one plain solve against ``kkt.factor`` and ``kkt.solve_vec``
 (the block LDL^T's plain solve), on each matrix; checked: the inertia against ``kkt.factor``'s
@@ -235,9 +235,9 @@ def build_compiled(sizes, nC: int, workdir: str):
         sys.exit(f"compilation failed:\n{' '.join(cmd)}\n{r.stderr}")
     so = ctypes.CDLL(str(lib))
     so.grouped_factor_c.restype = ctypes.c_int
-    so.grouped_factor_c.argtypes = [ctypes.c_int64] + [ctypes.c_void_p] * 5
+    so.grouped_factor_c.argtypes = [ctypes.c_int64] + [ctypes.c_void_p] * 7
     so.grouped_solve_c.restype = None
-    so.grouped_solve_c.argtypes = [ctypes.c_int64] + [ctypes.c_void_p] * 5
+    so.grouped_solve_c.argtypes = [ctypes.c_int64] + [ctypes.c_void_p] * 7
     return so
 
 
@@ -253,14 +253,17 @@ class Compiled:
     def factor(self, M):
         self.M = np.array(M, np.float64, order="C")
         self.piv = np.zeros((M.shape[0], self.nL), np.int32)
+        self.cols = np.zeros((M.shape[0], 3, M.shape[1]), np.int32)
+        self.ncols = np.zeros((M.shape[0], 3), np.int32)
         self.cnt = np.zeros(3, np.int64)
-        ptr = [a.ctypes.data for a in (self.M, self.piv, self.inpos, self.inmask, self.cnt)]
+        arrays = (self.M, self.piv, self.cols, self.ncols, self.inpos, self.inmask, self.cnt)
+        ptr = [a.ctypes.data for a in arrays]
         self.singular = self.so.grouped_factor_c(M.shape[0], *ptr)
         return self
 
     def solve(self, rpad):
         r = np.array(rpad, np.float64, order="C")
-        ptr = [a.ctypes.data for a in (self.M, self.piv, self.inpos, self.inmask, r)]
+        ptr = [a.ctypes.data for a in (self.M, self.piv, self.cols, self.ncols, self.inpos, self.inmask, r)]
         self.so.grouped_solve_c(r.shape[0], *ptr)
         return r
 

@@ -8,11 +8,11 @@
 //
 // Arrays are row-major (C order), F64. Interval i of the arrays is the i-th of the recursion
 // (the last interval in time first), as in the JAX scan. Per group [a, b) the pivot block P is
-// LU-factored with partial pivoting in place, and the rows [a, b) right of it are replaced by
-// Y = P^{-1} M[a:b, b:]; the columns below it keep M[b:, a:b]; the trailing block becomes
-// M[b:, b:] - M[b:, a:b] Y, skipping the zero entries of M[b:, a:b]; loops run over contiguous
-// rows, so that the compiler vectorises them. The solve: forward r[b:] -= M[b:, a:b] P^{-1} r[a:b],
-// backward x[a:b] = P^{-1} r[a:b] - Y x[b:].
+// LU-factored with partial pivoting in place; the columns right of the group that it couples to
+// (``cols``) are gathered into compact buffers: Y = P^{-1} M[a:b, cols] replaces M[a:b, cols],
+// M[b:, a:b] is kept, and M[cols, cols] -= M[cols, a:b] Y (the pattern is symmetric, so the
+// coupled rows are the coupled columns). The solve: forward r[cols] -= M[cols, a:b] P^{-1} r[a:b],
+// backward x[a:b] = P^{-1} r[a:b] - Y x[cols].
 #include <cmath>
 #include <cstdint>
 #include <cstring>
@@ -36,6 +36,7 @@ namespace {
 constexpr int nt = NL + NC;
 constexpr int bounds[4] = {0, B1, B2, NL};
 constexpr int g3 = NL - B2;
+constexpr int gmax = B1 > B2 - B1 ? (B1 > g3 ? B1 : g3) : (B2 - B1 > g3 ? B2 - B1 : g3);
 
 // LU with partial pivoting of the block M[a:b, a:b] in place; piv[i] = row swapped with a + i.
 bool lu(double* M, int a, int b, int32_t* piv) {
@@ -70,24 +71,24 @@ void lu_solve(const double* M, int a, int b, const int32_t* piv, double* x, int 
   }
 }
 
-// M[a:b, b:] <- P^{-1} M[a:b, b:] for the LU of P = M[a:b, a:b], by row operations on the
-// contiguous rows (vectorised over the columns).
-void solve_rows(double* M, int a, int b, const int32_t* piv) {
+// Y <- P^{-1} Y for the LU of P = M[a:b, a:b], Y (b - a) x nc row-major: row operations on
+// contiguous rows, which the compiler vectorises.
+void solve_compact(const double* M, int a, int b, const int32_t* piv, double* Y, int nc) {
   for (int k = a; k < b; ++k)
     if (piv[k - a] != k)
-      for (int j = b; j < nt; ++j) std::swap(M[k * nt + j], M[piv[k - a] * nt + j]);
+      for (int c = 0; c < nc; ++c) std::swap(Y[(k - a) * nc + c], Y[(piv[k - a] - a) * nc + c]);
   for (int i = a; i < b; ++i)
     for (int k = a; k < i; ++k) {
       const double l = M[i * nt + k];
-      for (int j = b; j < nt; ++j) M[i * nt + j] -= l * M[k * nt + j];
+      for (int c = 0; c < nc; ++c) Y[(i - a) * nc + c] -= l * Y[(k - a) * nc + c];
     }
   for (int i = b - 1; i >= a; --i) {
     for (int k = i + 1; k < b; ++k) {
       const double u = M[i * nt + k];
-      for (int j = b; j < nt; ++j) M[i * nt + j] -= u * M[k * nt + j];
+      for (int c = 0; c < nc; ++c) Y[(i - a) * nc + c] -= u * Y[(k - a) * nc + c];
     }
     const double d = 1.0 / M[i * nt + i];
-    for (int j = b; j < nt; ++j) M[i * nt + j] *= d;
+    for (int c = 0; c < nc; ++c) Y[(i - a) * nc + c] *= d;
   }
 }
 
@@ -147,12 +148,13 @@ void inertia_bk(double* A, int n, int64_t* cnt) {
 extern "C" {
 
 // Factor in place: M (N, nt, nt) the gathered blocks, becomes the factors; piv (N, NL);
+// cols (N, 3, nt) and ncols (N, 3): per group, the columns right of it that it couples to;
 // inpos (N, NC) slots of the incoming complement, inmask (N, NC); cnt[3] += G3's inertia.
 // Returns the number of singular pivot blocks.
-int grouped_factor_c(int64_t N, double* M, int32_t* piv, const int32_t* inpos, const uint8_t* inmask,
-                     int64_t* cnt) {
+int grouped_factor_c(int64_t N, double* M, int32_t* piv, int32_t* cols, int32_t* ncols, const int32_t* inpos,
+                     const uint8_t* inmask, int64_t* cnt) {
   int singular = 0;
-  double P3[g3 * g3];
+  double P3[g3 * g3], Y[gmax * nt], L[nt * gmax], T[nt * nt];
   for (int64_t s = 0; s < N; ++s) {
     double* Mk = M + s * nt * nt;
     if (s > 0) {
@@ -164,31 +166,44 @@ int grouped_factor_c(int64_t N, double* M, int32_t* piv, const int32_t* inpos, c
       }
     }
     for (int g = 0; g < 3; ++g) {
-      const int a = bounds[g], b = bounds[g + 1];
+      const int a = bounds[g], b = bounds[g + 1], w = b - a;
       if (g == 2) {
         for (int i = 0; i < g3; ++i)
           for (int j = 0; j < g3; ++j) P3[i * g3 + j] = 0.5 * (Mk[(a + i) * nt + a + j] + Mk[(a + j) * nt + a + i]);
         inertia_bk(P3, g3, cnt);
       }
+      int32_t* cl = cols + (s * 3 + g) * nt;
+      int nc = 0;
+      for (int j = b; j < nt; ++j)
+        for (int i = a; i < b; ++i)
+          if (Mk[i * nt + j] != 0.0) { cl[nc++] = j; break; }
+      ncols[s * 3 + g] = nc;
       singular += !lu(Mk, a, b, piv + s * NL + a);
-      solve_rows(Mk, a, b, piv + s * NL + a);
-      for (int i = b; i < nt; ++i) {  // M[i, b:] -= M[i, a:b] Y on the rows coupled to the group
-        double* Mi = Mk + i * nt;
-        for (int t = a; t < b; ++t) {
-          const double l = Mi[t];
-          if (l == 0.0) continue;
-          const double* Yt = Mk + t * nt;
-          for (int j = b; j < nt; ++j) Mi[j] -= l * Yt[j];
-        }
+      // the coupled part, compact: Y = M[a:b, cl], L = M[cl, a:b], T = M[cl, cl]
+      for (int t = 0; t < w; ++t)
+        for (int c = 0; c < nc; ++c) Y[t * nc + c] = Mk[(a + t) * nt + cl[c]];
+      for (int c = 0; c < nc; ++c) {
+        for (int t = 0; t < w; ++t) L[c * w + t] = Mk[cl[c] * nt + a + t];
+        for (int d = 0; d < nc; ++d) T[c * nc + d] = Mk[cl[c] * nt + cl[d]];
       }
+      solve_compact(Mk, a, b, piv + s * NL + a, Y, nc);
+      for (int c = 0; c < nc; ++c)
+        for (int t = 0; t < w; ++t) {
+          const double l = L[c * w + t];
+          for (int d = 0; d < nc; ++d) T[c * nc + d] -= l * Y[t * nc + d];
+        }
+      for (int t = 0; t < w; ++t)
+        for (int c = 0; c < nc; ++c) Mk[(a + t) * nt + cl[c]] = Y[t * nc + c];
+      for (int c = 0; c < nc; ++c)
+        for (int d = 0; d < nc; ++d) Mk[cl[c] * nt + cl[d]] = T[c * nc + d];
     }
   }
   return singular;
 }
 
 // Solve with the factors: r (N, NL) the right-hand sides in the slots, becomes the solution.
-void grouped_solve_c(int64_t N, const double* M, const int32_t* piv, const int32_t* inpos,
-                     const uint8_t* inmask, double* r) {
+void grouped_solve_c(int64_t N, const double* M, const int32_t* piv, const int32_t* cols, const int32_t* ncols,
+                     const int32_t* inpos, const uint8_t* inmask, double* r) {
   double v[nt], rc[NC] = {0};
   for (int64_t s = 0; s < N; ++s) {  // forward
     const double* Mk = M + s * nt * nt;
@@ -198,13 +213,14 @@ void grouped_solve_c(int64_t N, const double* M, const int32_t* piv, const int32
       if (s > 0 && inmask[s * NC + p]) v[inpos[s * NC + p]] += rc[p];
     for (int g = 0; g < 3; ++g) {
       const int a = bounds[g], b = bounds[g + 1];
-      double y[NL];
+      const int32_t* cl = cols + (s * 3 + g) * nt;
+      double y[gmax];
       std::memcpy(y, v + a, (b - a) * sizeof(double));
       lu_solve(Mk, a, b, piv + s * NL + a, y, 1);
-      for (int i = b; i < nt; ++i) {
+      for (int c = 0; c < ncols[s * 3 + g]; ++c) {
         double acc = 0.0;
-        for (int t = a; t < b; ++t) acc += Mk[i * nt + t] * y[t - a];
-        v[i] -= acc;
+        for (int t = a; t < b; ++t) acc += Mk[cl[c] * nt + t] * y[t - a];
+        v[cl[c]] -= acc;
       }
     }
     std::memcpy(r + s * NL, v, NL * sizeof(double));
@@ -217,10 +233,11 @@ void grouped_solve_c(int64_t N, const double* M, const int32_t* piv, const int32
     std::memcpy(v + NL, xc, NC * sizeof(double));
     for (int g = 2; g >= 0; --g) {
       const int a = bounds[g], b = bounds[g + 1];
+      const int32_t* cl = cols + (s * 3 + g) * nt;
       lu_solve(Mk, a, b, piv + s * NL + a, v + a, 1);
       for (int i = a; i < b; ++i) {
         double acc = 0.0;
-        for (int j = b; j < nt; ++j) acc += Mk[i * nt + j] * v[j];
+        for (int c = 0; c < ncols[s * 3 + g]; ++c) acc += Mk[i * nt + cl[c]] * v[cl[c]];
         v[i] -= acc;
       }
     }
