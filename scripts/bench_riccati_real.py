@@ -45,7 +45,6 @@ import shutil
 import subprocess
 import sys
 import tempfile
-import time
 
 import jax
 import jax.numpy as jnp
@@ -268,17 +267,6 @@ class Compiled:
         return r
 
 
-def median_ms(fns: dict, repeats: int) -> dict:
-    """Median ms of zero-argument numpy-level functions, called in alternation."""
-    ms: dict = {k: [] for k in fns}
-    for _ in range(repeats):
-        for k, f in fns.items():
-            t0 = time.perf_counter()
-            f()
-            ms[k].append((time.perf_counter() - t0) * 1e3)
-    return {k: float(np.median(v)) for k, v in ms.items()}
-
-
 def op_costs(repeats: int) -> dict:
     """ms per 100 scan steps of each operation one interval of the recursion runs (random data)."""
     rng = np.random.default_rng(0)
@@ -332,6 +320,11 @@ def main():
     k_sol = jax.jit(lambda fac, B, r: kkt.solve_vec(st, fac, kkt.border_coupling(st, fac, B), r))
     jin, jmask = jnp.asarray(inpos), jnp.asarray(inmask)
     real = idx[:, :nL] >= 0
+
+    def pad(v):
+        """A vector of K's unknowns in the per-interval local slots (zero in the padding)."""
+        return np.where(real, v[np.maximum(idx[:, :nL], 0)], 0.0)
+
     rng = np.random.default_rng(1)
     records, table = [], []
     for label in ("it3", "it30", "final", "synth"):
@@ -341,7 +334,7 @@ def main():
             Mnp = gather(Ks, idx, nL)
             M = jnp.asarray(Mnp)
             r = rng.normal(size=n + m)
-            rpad_np = np.where(real, r[np.maximum(idx[:, :nL], 0)], 0.0)
+            rpad_np = pad(r)
             rpad = jnp.asarray(rpad_np)
             fac = f_fac(M, jin, jmask)
             sc = ruiz(Ks)
@@ -351,7 +344,7 @@ def main():
                 """Backward errors of the plain solve and after 1..3 refinements against K."""
 
                 def apply(rr):
-                    xp = solve_pad(np.where(real, rr[np.maximum(idx[:, :nL], 0)], 0.0))
+                    xp = solve_pad(pad(rr))
                     x = np.zeros(n + m)
                     x[idx[:, :nL][real]] = xp[real]
                     return x

@@ -167,12 +167,13 @@ def run_variant(K, n, order, equilibrated, reg, Ke, sc, r) -> dict:
     return {"failed": False, **{k: e[k] for k in ("inertia", "growth", "flops", "carried")}, "backward_error": berr}
 
 
-def fmt(e, ref, n, m):
-    if e["failed"]:
+def fmt(rec) -> list[str]:
+    """The table cells of a record: inertia, decision, growth, backward errors."""
+    if rec["failed"]:
         return ["failed"] * 4
-    decision = (e["inertia"] == (n, m, 0)) == (ref == (n, m, 0))
-    b = e["backward_error"]
-    return [str(e["inertia"]), "yes" if decision else "NO", f"{e['growth']:.0e}", f"{b[0]:.0e} / {b[-1]:.0e}"]
+    b = rec["backward_error"]
+    cells = [str(rec["inertia"]), "yes" if rec["same_decision"] else "NO", f"{rec['growth']:.0e}"]
+    return cells + [f"{b[0]:.0e} / {b[-1]:.0e}"]
 
 
 def main():
@@ -209,11 +210,11 @@ def main():
                 decision = not e["failed"] and (e["inertia"] == (n, m, 0)) == (ref == (n, m, 0))
                 rec = {"matrix": label, "delta_w": dw, "delta_c": dc, "variant": variant}
                 rec |= {"block_ldl_inertia": ref, "same_inertia": same, "same_decision": decision}
-                rec |= {k: v for k, v in e.items() if k != "failed"} | {"failed": e["failed"]}
+                rec |= e
                 if not e["failed"]:
                     rec["flops_per_interval"] = e["flops"] / layout.N
                 records.append(rec)
-                table.append([label, f"{dw:g}", f"{dc:g}", variant, str(ref), *fmt(e, ref, n, m)])
+                table.append([label, f"{dw:g}", f"{dc:g}", variant, str(ref), *fmt(rec)])
     head = ["matrix", "delta_w", "delta_c", "variant", "block LDL^T inertia", "Riccati order inertia"]
     head += ["same decision", "growth", "backward error: plain / refined x3"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)] + ["| " + " | ".join(r_) + " |" for r_ in table]

@@ -59,15 +59,15 @@ bool lu(double* M, int a, int b, int32_t* piv) {
   return ok;
 }
 
-// x <- P^{-1} x for the LU of M[a:b, a:b]; x has stride `inc` (columns of a block).
-void lu_solve(const double* M, int a, int b, const int32_t* piv, double* x, int inc) {
+// x <- P^{-1} x for the LU of M[a:b, a:b].
+void lu_solve(const double* M, int a, int b, const int32_t* piv, double* x) {
   for (int k = a; k < b; ++k)
-    if (piv[k - a] != k) std::swap(x[(k - a) * inc], x[(piv[k - a] - a) * inc]);
+    if (piv[k - a] != k) std::swap(x[k - a], x[piv[k - a] - a]);
   for (int i = a; i < b; ++i)
-    for (int k = a; k < i; ++k) x[(i - a) * inc] -= M[i * nt + k] * x[(k - a) * inc];
+    for (int k = a; k < i; ++k) x[i - a] -= M[i * nt + k] * x[k - a];
   for (int i = b - 1; i >= a; --i) {
-    for (int k = i + 1; k < b; ++k) x[(i - a) * inc] -= M[i * nt + k] * x[(k - a) * inc];
-    x[(i - a) * inc] /= M[i * nt + i];
+    for (int k = i + 1; k < b; ++k) x[i - a] -= M[i * nt + k] * x[k - a];
+    x[i - a] /= M[i * nt + i];
   }
 }
 
@@ -216,7 +216,7 @@ void grouped_solve_c(int64_t N, const double* M, const int32_t* piv, const int32
       const int32_t* cl = cols + (s * 3 + g) * nt;
       double y[gmax];
       std::memcpy(y, v + a, (b - a) * sizeof(double));
-      lu_solve(Mk, a, b, piv + s * NL + a, y, 1);
+      lu_solve(Mk, a, b, piv + s * NL + a, y);
       for (int c = 0; c < ncols[s * 3 + g]; ++c) {
         double acc = 0.0;
         for (int t = a; t < b; ++t) acc += Mk[cl[c] * nt + t] * y[t - a];
@@ -234,7 +234,7 @@ void grouped_solve_c(int64_t N, const double* M, const int32_t* piv, const int32
     for (int g = 2; g >= 0; --g) {
       const int a = bounds[g], b = bounds[g + 1];
       const int32_t* cl = cols + (s * 3 + g) * nt;
-      lu_solve(Mk, a, b, piv + s * NL + a, v + a, 1);
+      lu_solve(Mk, a, b, piv + s * NL + a, v + a);
       for (int i = a; i < b; ++i) {
         double acc = 0.0;
         for (int c = 0; c < ncols[s * 3 + g]; ++c) acc += Mk[i * nt + cl[c]] * v[cl[c]];
