@@ -33,6 +33,34 @@ def time_fn(fn, *args, repeats: int = 50) -> dict:
     }
 
 
+def alternate(fns: dict, repeats: int, per: dict | None = None) -> dict:
+    """Median wall and CPU ms (this process) of each zero-argument function, called in alternation
+    (one call of each per round, in a new random order each round) after one warm-up call; divided
+    by ``per[k]`` (batch members) where given. A varying load on a shared machine affects all alike."""
+    for f in fns.values():
+        jax.block_until_ready(f())
+    wall: dict = {k: [] for k in fns}
+    cpu: dict = {k: [] for k in fns}
+    order, rng = list(fns), np.random.default_rng(0)
+    for _ in range(repeats):
+        rng.shuffle(order)
+        for k in order:
+            t0, c0 = time.perf_counter(), time.process_time()
+            jax.block_until_ready(fns[k]())
+            wall[k].append((time.perf_counter() - t0) * 1e3)
+            cpu[k].append((time.process_time() - c0) * 1e3)
+    per = per or {}
+    return {
+        k: {
+            "median_ms": float(np.median(wall[k])) / per.get(k, 1),
+            "min_ms": float(np.min(wall[k])) / per.get(k, 1),
+            "cpu_median_ms": float(np.median(cpu[k])) / per.get(k, 1),
+            "per": per.get(k, 1),
+        }
+        for k in fns
+    }
+
+
 def write(results: dict, path: str) -> None:
     results = {
         "machine": {

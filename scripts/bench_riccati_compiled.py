@@ -38,13 +38,12 @@ import shutil
 import subprocess
 import sys
 import tempfile
-import time
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import scipy.sparse as sp
-from _bench import show_table, write
+from _bench import alternate, show_table, write
 from bench_riccati_floor import block_cholesky, riccati, stage_sizes, synthetic
 from jax import lax
 from jax.scipy.linalg import cho_solve, lu_factor, lu_solve, solve_triangular
@@ -219,35 +218,6 @@ def rel(a, b) -> float:
     a = np.concatenate([np.ravel(v) for v in (a if isinstance(a, tuple | list) else [a])])
     b = np.concatenate([np.ravel(v) for v in (b if isinstance(b, tuple | list) else [b])])
     return float(np.max(np.abs(a - b)) / np.max(np.abs(b)))
-
-
-def alternate(fns: dict, repeats: int, per: dict | None = None) -> dict:
-    """Median wall and CPU ms (this process) of each zero-argument function, called in alternation
-    (one call of each per round, in a new random order each round) after one warm-up call; divided
-    by ``per[k]`` (batch members) where given."""
-    for f in fns.values():
-        jax.block_until_ready(f())
-    wall: dict = {k: [] for k in fns}
-    cpu: dict = {k: [] for k in fns}
-    order, rng = list(fns), np.random.default_rng(0)
-    for _ in range(repeats):
-        rng.shuffle(order)
-        for k in order:
-            f = fns[k]
-            t0, c0 = time.perf_counter(), time.process_time()
-            jax.block_until_ready(f())
-            wall[k].append((time.perf_counter() - t0) * 1e3)
-            cpu[k].append((time.process_time() - c0) * 1e3)
-    per = per or {}
-    return {
-        k: {
-            "median_ms": float(np.median(wall[k])) / per.get(k, 1),
-            "min_ms": float(np.min(wall[k])) / per.get(k, 1),
-            "cpu_median_ms": float(np.median(cpu[k])) / per.get(k, 1),
-            "per": per.get(k, 1),
-        }
-        for k in fns
-    }
 
 
 def check(errors: dict, tol: float, what: str) -> None:

@@ -14,7 +14,7 @@ from jaxhumanoid.ocp import tasks
 from jaxhumanoid.ocp import transcription as tr
 from jaxhumanoid.ocp.scheme import Scheme, parse_scheme
 from jaxhumanoid.strategy.posture import reseat_for_contact
-from jaxhumanoid.strategy.problem import build_problem
+from jaxhumanoid.strategy.problem import build_problem, with_sweeps
 
 
 @pytest.mark.parametrize(
@@ -48,9 +48,14 @@ def test_scheme_parsing_and_errors():
 CASES = [("T1", "E,F,1S", False), ("T1", "A,F,1S", False), ("T3", "A,F+C,1S", False), ("T2", "A,F+C,2S", True)]
 
 
-@pytest.mark.parametrize("task,scheme,pseudo", CASES)
-def test_sparse_derivatives_equal_dense_and_patterns_complete(task, scheme, pseudo):
+# every scheme with the joint sweeps; the grouped ones on A,F+C, dynamic and pseudo-static
+SWEEP_CASES = [(*case, "joint") for case in CASES] + [(*case, "grouped") for case in CASES[2:]]
+
+
+@pytest.mark.parametrize("task,scheme,pseudo,sweeps", SWEEP_CASES)
+def test_sparse_derivatives_equal_dense_and_patterns_complete(task, scheme, pseudo, sweeps):
     pr = build_problem(task, scheme, N=6, pseudo_static=pseudo, contact=ContactParams.relaxed() if pseudo else None)
+    pr = with_sweeps(pr, sweeps)
     nlp, p = pr.nlp, pr.p
     rng = np.random.default_rng(1)
     x = pr.bounds.x0 + 0.05 * rng.normal(size=nlp.n)
@@ -73,6 +78,24 @@ def test_sparse_derivatives_equal_dense_and_patterns_complete(task, scheme, pseu
     f = jax.jit(nlp.f)
     fd = [(f(x + eps * np.eye(nlp.n)[k], p) - f(x - eps * np.eye(nlp.n)[k], p)) / (2 * eps) for k in i]
     assert np.allclose(np.asarray(jax.jit(nlp.grad)(x, p))[i], fd, rtol=1e-6, atol=1e-6)
+
+
+def test_grouped_sweeps_agree_with_joint_and_reject_bad_names():
+    pr = build_problem("T1", "A,F+C,1S", N=8)
+    grouped = with_sweeps(pr, "grouped").nlp
+    assert grouped is not pr.nlp and with_sweeps(pr, "joint").nlp is pr.nlp
+    assert np.array_equal(grouped.jac_rows, pr.nlp.jac_rows) and np.array_equal(grouped.hess_cols, pr.nlp.hess_cols)
+    rng = np.random.default_rng(2)
+    x, lam = pr.bounds.x0 + 0.05 * rng.normal(size=pr.nlp.n), rng.normal(size=pr.nlp.m)
+    for a, b in (
+        (jax.jit(grouped.jac_values)(x, pr.p), jax.jit(pr.nlp.jac_values)(x, pr.p)),
+        (jax.jit(grouped.hess_values)(x, lam, 1.0, pr.p), jax.jit(pr.nlp.hess_values)(x, lam, 1.0, pr.p)),
+    ):
+        assert np.max(np.abs(np.asarray(a) - np.asarray(b))) <= 1e-13 * np.max(np.abs(np.asarray(b)))
+    idx = np.sort(np.concatenate(tr.midpoint_groups(pr.layout)))
+    assert np.array_equal(idx, np.arange(tr.midpoint_map(pr.layout).shape[0]))
+    with pytest.raises(ValueError, match="sweeps"):
+        with_sweeps(pr, "fast")
 
 
 def test_stage_structure_is_block_tridiagonal():

@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxhumanoid.derivatives.local import LocalDerivatives, local_derivatives
+from jaxhumanoid.derivatives.local import ColumnGroups, LocalDerivatives, local_derivatives
 from jaxhumanoid.ocp import transcription as tr
 from jaxhumanoid.ocp.nlp import NLP
 
@@ -43,14 +43,25 @@ def _local_functions(layout: tr.Layout):
     return con_r, cost
 
 
-def stagewise_nlp(layout: tr.Layout, p_example: tr.OCPParams, name: str = "ocp") -> NLP:
+SWEEPS = ("joint", "grouped")
+
+
+def stagewise_nlp(layout: tr.Layout, p_example: tr.OCPParams, name: str = "ocp", sweeps: str = "joint") -> NLP:
     """The NLP of a transcription with sparse, stage-exploiting derivatives.
 
     ``p_example`` is used only to detect the local sparsity patterns (at random local points).
+    ``sweeps``: ``"joint"`` sweeps the interval Jacobian and Hessian with one colouring each of all
+    midpoint variables; ``"grouped"`` sweeps each of ``transcription.MIDPOINT_GROUPS`` apart (the
+    same values to round-off, fewer operations: ``derivatives.local``).
     """
+    if sweeps not in SWEEPS:
+        raise ValueError(f"sweeps: {sweeps!r} not in {SWEEPS}")
     N = layout.N
     con_r, cost = _local_functions(layout)
-    loc: LocalDerivatives = local_derivatives(con_r, tr.midpoint_map(layout), cost, p_example)
+    groups = None
+    if sweeps == "grouped":
+        groups = ColumnGroups(tr.midpoint_groups(layout), lambda zs, p: tr.interval_constraints_grouped(layout, zs, p))
+    loc: LocalDerivatives = local_derivatives(con_r, tr.midpoint_map(layout), cost, p_example, groups=groups)
     fidx = _free_index(layout)
     n = int((fidx >= 0).sum())
     n_con = layout.n_con

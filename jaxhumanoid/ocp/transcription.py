@@ -181,18 +181,48 @@ def midpoint_map(layout: Layout) -> np.ndarray:
     return M
 
 
+# The parts of r grouped by how much of the model a forward tangent seeded in them passes through:
+# the positions reach every kinematic term, the rates the velocity terms, and (dq, dqd, u, f)
+# enter (6)-(8) and (3)-(5) only through products with terms of the positions and rates.
+MIDPOINT_GROUPS = (("qbar", "q1"), ("qdbar",), ("dq", "dqd", "u", "f"))
+
+
+def midpoint_groups(layout: Layout) -> tuple[np.ndarray, ...]:
+    """Indices into r of each of ``MIDPOINT_GROUPS``: a partition of r's 6n + n_f entries."""
+    sl = midpoint_slices(layout)
+    return tuple(np.concatenate([np.arange(sl[k].start, sl[k].stop) for k in names]) for names in MIDPOINT_GROUPS)
+
+
 def interval_constraints_midpoint(layout: Layout, r, p: OCPParams):
     """Constraints of one interval as a function of its midpoint variables r (``midpoint_map``)."""
-    h = p.T / layout.N
+    return _interval_constraints(layout, {k: r[s] for k, s in midpoint_slices(layout).items()}, p)
+
+
+def interval_constraints_grouped(layout: Layout, zs, p: OCPParams):
+    """``interval_constraints_midpoint`` of r given as its groups zs[g] = r[midpoint_groups(layout)[g]].
+
+    A forward sweep that differentiates one group only, the others held, carries tangents through
+    the operations that group reaches (``derivatives.local``'s grouped Jacobian)."""
     sl = midpoint_slices(layout)
-    qbar, qdbar, dq, dqd, u = r[sl["qbar"]], r[sl["qdbar"]], r[sl["dq"]], r[sl["dqd"]], r[sl["u"]]
-    q1 = r[sl["q1"]]
+    parts = {}
+    for names, z in zip(MIDPOINT_GROUPS, zs, strict=True):
+        i = 0
+        for k in names:
+            size = sl[k].stop - sl[k].start
+            parts[k], i = z[i : i + size], i + size
+    return _interval_constraints(layout, parts, p)
+
+
+def _interval_constraints(layout: Layout, parts: dict, p: OCPParams):
+    h = p.T / layout.N
+    qbar, qdbar, dq, dqd, u = (parts[k] for k in ("qbar", "qdbar", "dq", "dqd", "u"))
+    q1 = parts["q1"]
     if layout.pseudo_static:
         qdbar_law = dq / h  # (8): the rate from the positions; equals qdbar where (6a) holds
     else:
         qdbar_law = qdbar
     f_law = ct.contact_forces(p.model, p.foot, p.contact, qbar, qdbar_law, layout.active)
-    f_used = r[sl["f"]].reshape(-1, 2) if layout.augmented else f_law
+    f_used = parts["f"].reshape(-1, 2) if layout.augmented else f_law
     kin_res = dq - h * qdbar  # (6a)
     if layout.pseudo_static:
         dyn_res = dyn.pseudo_static_residual(p.model, qbar, u, f_used, layout.active)  # (8)
@@ -202,17 +232,17 @@ def interval_constraints_midpoint(layout: Layout, r, p: OCPParams):
         qdd = dqd / h
         dyn_res = h * dyn.dynamics_residual(p.model, qbar, qdbar, qdd, u, f_used, layout.active)  # (6b)
         f_c0 = ft.foot_reaction(p.model, qbar, qdbar, qdd, f_used)
-    parts = [kin_res, dyn_res]
+    rows = [kin_res, dyn_res]
     if layout.augmented:
-        parts.append((f_used - f_law).ravel())
+        rows.append((f_used - f_law).ravel())
     weight = p.model.total_mass * p.model.g
-    parts.append(ft.foot_constraints(p.foot, p.contact.mu, f_c0, u[0], p.foot_margin, weight))  # (5), at the midpoint
+    rows.append(ft.foot_constraints(p.foot, p.contact.mu, f_c0, u[0], p.foot_margin, weight))  # (5), at the midpoint
     if layout.clear_joints:
         gaps = kin.contact_gaps(p.model, p.foot, q1)
-        parts.append(gaps[jnp.asarray(layout.clear_joints) - 1])
+        rows.append(gaps[jnp.asarray(layout.clear_joints) - 1])
     if layout.force_rows:
-        parts.append(f_law[:, 1])  # f_n <= the contact-force limit (bounds of the NLP)
-    return jnp.concatenate(parts)
+        rows.append(f_law[:, 1])  # f_n <= the contact-force limit (bounds of the NLP)
+    return jnp.concatenate(rows)
 
 
 def interval_constraints(layout: Layout, za, zb, p: OCPParams):

@@ -8,7 +8,7 @@ import functools
 import jax.numpy as jnp
 import numpy as np
 
-from jaxhumanoid.derivatives.stagewise import stagewise_nlp
+from jaxhumanoid.derivatives.stagewise import SWEEPS, stagewise_nlp
 from jaxhumanoid.model.foot import FootMargin
 from jaxhumanoid.model.params import ContactParams, FootParams, PlanarChain
 from jaxhumanoid.ocp import static_path
@@ -68,8 +68,8 @@ def pattern_params(n_links: int) -> tr.OCPParams:
 
 
 @functools.lru_cache(maxsize=64)
-def _cached_nlp(layout: tr.Layout) -> NLP:
-    return stagewise_nlp(layout, pattern_params(layout.n_links), name=f"N={layout.N}")
+def _cached_nlp(layout: tr.Layout, sweeps: str) -> NLP:
+    return stagewise_nlp(layout, pattern_params(layout.n_links), name=f"N={layout.N}", sweeps=sweeps)
 
 
 def clear_nlp_cache() -> None:
@@ -129,7 +129,7 @@ def build_problem(
         if q_start.shape != (n,):
             raise ValueError(f"q_start: expected shape ({n},), got {q_start.shape}")
         p = dataclasses.replace(p, q_start=q_start)
-    nlp = _cached_nlp(layout)
+    nlp = _cached_nlp(layout, "joint")
     lo, hi = _bounds_full(task, layout, p)
     free = layout.free_mask()
     kinds = np.tile(layout.constraint_kinds(), layout.N)
@@ -172,6 +172,14 @@ def with_guess(problem: Problem, guess: str) -> Problem:
         initial_guess(problem.layout, problem.p, problem.task, guess, full), problem.bounds.xl, problem.bounds.xu
     )
     return dataclasses.replace(problem, bounds=dataclasses.replace(problem.bounds, x0=x0))
+
+
+def with_sweeps(problem: Problem, sweeps: str) -> Problem:
+    """``problem`` with its derivatives swept as ``sweeps`` says (``derivatives.stagewise.SWEEPS``:
+    ``"joint"``, the default, or ``"grouped"``, the same values to round-off in fewer operations)."""
+    if sweeps not in SWEEPS:
+        raise ValueError(f"sweeps: {sweeps!r} not in {SWEEPS}")
+    return dataclasses.replace(problem, nlp=_cached_nlp(problem.layout, sweeps))
 
 
 def stage_problem(
