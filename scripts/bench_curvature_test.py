@@ -22,7 +22,7 @@ from __future__ import annotations
 import argparse
 
 from _bench import write
-from bench_first_trial import run_all, summarise, table
+from bench_first_trial import problem_args, record, run_all, summarise, table
 
 from jaxhumanoid.solvers.ipopt import solve_ipopt
 from jaxhumanoid.strategy import solve as strat
@@ -36,24 +36,14 @@ def run_nlp(problem, x0, stage: str, tol: float) -> dict:
     out = {}
     for test, extra in zip(TESTS, ({}, {"neg_curv_test_tol": tol})):
         r = solve_ipopt(problem.nlp, problem.p, problem.bounds, x0=x0, options={**base, **extra})
-        out[test] = {
-            "status": r.status,
-            "success": bool(r.success),
-            "iterations": int(r.iterations),
-            "solve_s": float(r.solve_time_s),
-            "objective": float(r.objective),
-        }
+        out[test] = record(r)
     return out
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--tasks", nargs="+", default=["T1", "T2", "T3", "T4"])
-    ap.add_argument("--draws", type=int, default=4, help="problems per task (draw 0: the task as posed)")
-    ap.add_argument("--seed", type=int, default=0)
+    problem_args(ap, "results/bench_curvature_test.json")
     ap.add_argument("--tol", type=float, default=1e-12, help="IPOPT's neg_curv_test_tol of the curvature test")
-    ap.add_argument("--out", default="results/bench_curvature_test.json")
-    ap.add_argument("--quiet", action="store_true")
     args = ap.parse_args()
     if not args.tol > 0:
         raise SystemExit("--tol: expected a positive tolerance")

@@ -59,18 +59,22 @@ def nlps(task: str, w: np.ndarray) -> list[tuple[str, Problem, np.ndarray]]:
     return [("stage 1", first, first.bounds.x0), ("stage 2", final, x2)]
 
 
-def run_one(problem: Problem, x0, stage: str, variant: str) -> dict:
-    base = strat.STAGE1_DEFAULTS if stage == "stage 1" else strat.STAGE2_DEFAULTS
-    r = solve_ipm(problem.nlp, problem.p, problem.bounds, x0=x0, options={**base, "inertia_first_trial": variant})
-    n_fact = int(np.sum(r.history["n_fact"])) if r.history else 0
+def record(r) -> dict:
+    """What the tables use of one solve's result."""
     return {
         "status": r.status,
         "success": bool(r.success),
         "iterations": int(r.iterations),
-        "factorisations": n_fact,
         "solve_s": float(r.solve_time_s),
         "objective": float(r.objective),
     }
+
+
+def run_one(problem: Problem, x0, stage: str, variant: str) -> dict:
+    base = strat.STAGE1_DEFAULTS if stage == "stage 1" else strat.STAGE2_DEFAULTS
+    r = solve_ipm(problem.nlp, problem.p, problem.bounds, x0=x0, options={**base, "inertia_first_trial": variant})
+    n_fact = int(np.sum(r.history["n_fact"])) if r.history else 0
+    return {**record(r), "factorisations": n_fact}
 
 
 def summarise(records: list[dict], variants: tuple[str, str] = VARIANTS) -> dict:
@@ -156,14 +160,19 @@ def run_all(args, solve_nlp) -> list[dict]:
     return records
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def problem_args(ap: argparse.ArgumentParser, out: str) -> None:
+    """The options of ``run_all`` (tasks, draws, seed, quiet) and the JSON output."""
     ap.add_argument("--tasks", nargs="+", default=["T1", "T2", "T3", "T4"])
     ap.add_argument("--draws", type=int, default=4, help="problems per task (draw 0: the task as posed)")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out", default="results/bench_first_trial.json")
-    ap.add_argument("--md", default=None, help="also write the table as Markdown")
+    ap.add_argument("--out", default=out)
     ap.add_argument("--quiet", action="store_true")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    problem_args(ap, "results/bench_first_trial.json")
+    ap.add_argument("--md", default=None, help="also write the table as Markdown")
     args = ap.parse_args()
     records = run_all(args, lambda problem, x0, stage: {v: run_one(problem, x0, stage, v) for v in VARIANTS})
     summary = summarise(records)

@@ -22,7 +22,7 @@ import itertools
 import pathlib
 
 from _bench import write
-from bench_first_trial import run_all, summarise, table
+from bench_first_trial import problem_args, record, run_all, summarise, table
 
 from jaxhumanoid.solvers.ipm import solve_ipm
 from jaxhumanoid.solvers.ipopt import solve_ipopt
@@ -41,24 +41,14 @@ def run_nlp(problem, x0, stage: str, first: str) -> dict:
         solve_ipopt(pr.nlp, pr.p, pr.bounds, x0=x0, options={**base, "max_iter": 2})
         for solver, solve in (("ipopt", solve_ipopt), ("ipm", solve_ipm)):
             r = solve(pr.nlp, pr.p, pr.bounds, x0=x0, options=dict(base))
-            out[f"{solver} {sweeps}"] = {
-                "status": r.status,
-                "success": bool(r.success),
-                "iterations": int(r.iterations),
-                "solve_s": float(r.solve_time_s),
-                "objective": float(r.objective),
-            }
+            out[f"{solver} {sweeps}"] = record(r)
     return out
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--tasks", nargs="+", default=["T1", "T2", "T3", "T4"])
-    ap.add_argument("--draws", type=int, default=4, help="problems per task (draw 0: the task as posed)")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out", default="results/bench_sweeps.json")
+    problem_args(ap, "results/bench_sweeps.json")
     ap.add_argument("--md", default=None, help="also write the tables as Markdown")
-    ap.add_argument("--quiet", action="store_true")
     args = ap.parse_args()
     calls = itertools.count()  # stage 1 and stage 2 of a draw; the sweep solved first alternates by draw
     records = run_all(args, lambda problem, x0, stage: run_nlp(problem, x0, stage, SWEEPS[next(calls) // 2 % 2]))
