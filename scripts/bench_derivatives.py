@@ -17,8 +17,7 @@ import numpy as np
 from _bench import alternate, time_fn, write
 
 import jaxhumanoid  # noqa: F401
-from jaxhumanoid.derivatives.stagewise import stagewise_nlp
-from jaxhumanoid.strategy.problem import build_problem, pattern_params
+from jaxhumanoid.strategy.problem import build_problem, with_sweeps
 
 SCHEMES = ("E,F,1S", "A,F,1S", "A,F+C,1S")
 
@@ -30,8 +29,7 @@ def _rel(a, b) -> float:
 
 def sweeps_compared(pr, repeats: int) -> dict:
     """J and H, joint against grouped, in alternation at the guess; the values' agreement; colours."""
-    joint = pr.nlp
-    grouped = stagewise_nlp(pr.layout, pattern_params(pr.layout.n_links), sweeps="grouped")
+    joint, grouped = pr.nlp, with_sweeps(pr, "grouped").nlp
     x, p = pr.bounds.x0, pr.p
     lam = np.random.default_rng(0).normal(size=joint.m)
     jit = {k: (jax.jit(v.jac_values), jax.jit(v.hess_values)) for k, v in (("joint", joint), ("grouped", grouped))}
@@ -63,8 +61,8 @@ def main():
     print(
         f"{'scheme':10s} {'n':>5s} {'m':>5s} {'nnz J':>7s} {'nnz H':>7s} {'f':>8s} {'g':>8s} {'grad':>8s} {'J':>8s} {'H':>8s} {'J cpu':>8s} {'H cpu':>8s}  (median ms)"
     )
-    for scheme in SCHEMES:
-        pr = build_problem("T1", scheme, N=args.N)
+    problems = {scheme: build_problem("T1", scheme, N=args.N) for scheme in SCHEMES}
+    for scheme, pr in problems.items():
         nlp, p, x = pr.nlp, pr.p, pr.bounds.x0
         lam = np.random.default_rng(0).normal(size=nlp.m)
         row = {
@@ -84,8 +82,8 @@ def main():
         "\n| scheme | J joint | J grouped | H joint | H grouped | J+H joint | J+H grouped | J+H ratio | max rel. diff J, H |"
     )
     print("|---|---|---|---|---|---|---|---|---|")
-    for scheme in SCHEMES:
-        c = sweeps_compared(build_problem("T1", scheme, N=args.N), args.repeats)
+    for scheme, pr in problems.items():
+        c = sweeps_compared(pr, args.repeats)
         results[scheme]["sweeps"] = c
         t = {k: v["median_ms"] for k, v in c["times"].items()}
         print(

@@ -9,10 +9,11 @@ Round-off moves the solvers' paths, so what a solve gains is measured here over 
 ``bench_first_trial.py``'s (per task, draw 0 as posed and draws 1.. with the four cost terms
 scaled log-uniformly in [0.5, 2]; stage 1 of 2S from the initial guess and the dynamic stage 2
 from IPOPT's stage-1 solution). Each NLP is solved by IPOPT and by the IPM with each sweep, one
-after the other, the sweep that goes first alternating from draw to draw (IPOPT after a two-iteration warm-up; the IPM's solve time excludes compilation):
-status, iterations, solve time, objective. The tables (``bench_first_trial.table``) give per
-solver the successes, the medians of iterations, solve time and time per iteration, the median
-ratios (grouped / joint, same NLP) and on how many NLPs both reach the same optimum.
+after the other, the sweep that goes first alternating from draw to draw (IPOPT after a
+two-iteration warm-up; the IPM's solve time excludes compilation): status, iterations, solve
+time, objective. The tables (``bench_first_trial.table``) give per solver the successes, the
+medians of iterations, solve time and time per iteration, the median ratios (grouped / joint,
+same NLP) and on how many NLPs both reach the same optimum.
 """
 
 from __future__ import annotations
@@ -24,12 +25,12 @@ import pathlib
 from _bench import write
 from bench_first_trial import problem_args, record, run_all, summarise, table
 
+from jaxhumanoid.derivatives.stagewise import SWEEPS
 from jaxhumanoid.solvers.ipm import solve_ipm
 from jaxhumanoid.solvers.ipopt import solve_ipopt
 from jaxhumanoid.strategy import solve as strat
 from jaxhumanoid.strategy.problem import with_sweeps
 
-SWEEPS = ("joint", "grouped")
 SOLVERS = ("ipopt", "ipm")
 
 

@@ -55,6 +55,11 @@ class ColumnGroups:
     index: tuple[np.ndarray, ...]
     con: Callable
 
+    @property
+    def nr(self) -> int:
+        """The number of columns of r."""
+        return int(sum(i.size for i in self.index))
+
     def __post_init__(self):
         cols = np.sort(np.concatenate(self.index))
         if not np.array_equal(cols, np.arange(cols.size)):
@@ -67,10 +72,9 @@ def _grouped_sweeps(fun: Callable, groups: ColumnGroups, rows: np.ndarray, cols:
 
     Returns (values, pos, colours): values(R (K, nr), *args) -> (K, nnz) holds entry e in column
     pos[e]; ``args_axes`` are the vmap axes of ``args``; colours counts the sweeps of all groups."""
-    nr = int(sum(i.size for i in groups.index))
     sweeps, entries, n_colours = [], [], 0
     for g, idx in enumerate(groups.index):
-        local = np.full(nr, -1)
+        local = np.full(groups.nr, -1)
         local[idx] = np.arange(idx.size)
         e = np.flatnonzero(local[cols] >= 0)
         if e.size == 0:
@@ -97,7 +101,7 @@ def _grouped_hessian(groups: ColumnGroups, hr: np.ndarray, hc: np.ndarray):
     """The lower-triangle entries (hr, hc) of d2 (lam . con) / dr2 as columns of the Jacobian of the
     gradient, each entry taken from the sweeps of the earlier of its two groups. Returns
     (values(R, lam (K, n_con), p), pos, colours) as ``_grouped_sweeps``."""
-    nr = int(sum(i.size for i in groups.index))
+    nr = groups.nr
     group = np.empty(nr, dtype=np.int64)
     for g, idx in enumerate(groups.index):
         group[idx] = g
