@@ -3,6 +3,7 @@
     python scripts/bench_ipm.py [--tasks T1 T2 T3 T4] [--runs 3] [--batch 32] [--iters 40]
                                 [--out results/bench_ipm.json] [--skip-compile] [--skip-batch]
                                 [--skip-per-iteration] [--skip-spread] [--compile-only RUNS]
+                                [--compile-sweeps joint grouped]
 
 1. Per-iteration time at N = 100 (T1's dynamic stage-2 NLP from the 2S warm start, ``--iters``
    iterations, medians of ``--runs``): IPM and IPOPT, and their ratio.
@@ -14,7 +15,8 @@
    of iteration counts and optima on these chaotic NLPs (``--skip-spread`` skips it).
 3. IPM compile time of the N = 100 NLP in fresh processes: cold (empty persistent JAX cache) and
    warm (the cache the cold run filled). ``--compile-only RUNS`` measures only this, RUNS times,
-   for the solve as one program and as the command line runs it (with a progress line).
+   for the solve as one program and as the command line runs it (with a progress line), with
+   each of ``--compile-sweeps`` (the derivatives' sweeps, ``stagewise_nlp``).
 4. Throughput of a ``vmap`` batch of ``--batch`` stage-1 (pseudo-static, N1 = 30) problems of T1
    with perturbed cost weights (``batch_solve_ipm``), against the same problems one after another.
 Set OMP_NUM_THREADS=1 when comparing with other runs.
@@ -37,6 +39,7 @@ import numpy as np
 from _bench import write
 
 import jaxhumanoid  # noqa: F401
+from jaxhumanoid.derivatives.stagewise import SWEEPS
 from jaxhumanoid.model.params import ContactParams
 from jaxhumanoid.ocp import transcription as tr
 from jaxhumanoid.ocp.scheme import parse_scheme
@@ -169,35 +172,40 @@ import jaxhumanoid
 from jaxhumanoid.runtime import enable_compilation_cache
 from jaxhumanoid.ocp.scheme import parse_scheme
 from jaxhumanoid.solvers.ipm import solve_ipm
-from jaxhumanoid.strategy.problem import build_problem
+from jaxhumanoid.strategy.problem import build_problem, with_sweeps
 enable_compilation_cache(sys.argv[1])
-prob = build_problem("T1", parse_scheme("A,F+C,2S"), N=100)
+prob = with_sweeps(build_problem("T1", parse_scheme("A,F+C,2S"), N=100), sys.argv[3])
 progress = (lambda k, f, inf: None) if sys.argv[2] == "stepped" else None
 r = solve_ipm(prob.nlp, prob.p, prob.bounds, options={"max_iter": 1}, progress=progress)
 print(json.dumps({"compile_s": r.compile_time_s}))
 """
 
 
-def compile_times(mode: str = "whole") -> dict:
+def compile_times(mode: str = "whole", sweeps: str = "joint") -> dict:
     """IPM compile time in two fresh processes sharing a new persistent cache: cold, then warm.
     ``mode`` "whole": the solve as one program; "stepped": with a progress callback, as the
-    command line runs it (start, one iteration and finish compiled apart)."""
+    command line runs it (start, one iteration and finish compiled apart). ``sweeps``: the
+    derivatives' sweeps (``with_sweeps``)."""
     out = {}
     with tempfile.TemporaryDirectory() as cache:
         for label in ("cold", "warm"):
             t0 = time.perf_counter()
-            p = subprocess.run([sys.executable, "-c", _CHILD, cache, mode], capture_output=True, text=True, check=True)
+            p = subprocess.run(
+                [sys.executable, "-c", _CHILD, cache, mode, sweeps], capture_output=True, text=True, check=True
+            )
             out[f"{label}_compile_s"] = json.loads(p.stdout.strip().splitlines()[-1])["compile_s"]
             out[f"{label}_process_s"] = time.perf_counter() - t0
     return out
 
 
-def compile_spread(runs: int) -> dict:
-    """``compile_times`` of both modes, alternating, ``runs`` times: every run and the medians."""
-    rows: dict[str, list[dict]] = {"whole": [], "stepped": []}
+def compile_spread(runs: int, sweeps: tuple[str, ...] = ("joint",)) -> dict:
+    """``compile_times`` of both modes and each of ``sweeps``, alternating, ``runs`` times: every
+    run and the medians, keyed "whole", "stepped" (joint sweeps) and "whole grouped", ...."""
+    cases = {(m if sw == "joint" else f"{m} {sw}"): (m, sw) for sw in sweeps for m in ("whole", "stepped")}
+    rows: dict[str, list[dict]] = {label: [] for label in cases}
     for _ in range(runs):
-        for mode, r in rows.items():
-            r.append(compile_times(mode))
+        for label, r in rows.items():
+            r.append(compile_times(*cases[label]))
     return {
         mode: {
             "runs": r,
@@ -251,11 +259,12 @@ def main():
     ap.add_argument("--skip-per-iteration", action="store_true")
     ap.add_argument("--skip-spread", action="store_true")
     ap.add_argument("--compile-only", type=int, default=0, metavar="RUNS", help="only the compile times, RUNS times")
+    ap.add_argument("--compile-sweeps", nargs="+", default=["joint"], choices=SWEEPS, help="sweeps to compile with")
     args = ap.parse_args()
     enable_compilation_cache()
     results = {"omp_num_threads": os.environ.get("OMP_NUM_THREADS")}
     if args.compile_only:
-        results["compile_spread"] = c = compile_spread(args.compile_only)
+        results["compile_spread"] = c = compile_spread(args.compile_only, tuple(args.compile_sweeps))
         for mode, r in c.items():
             each = ", ".join(f"{x['cold_compile_s']:.1f}" for x in r["runs"])
             print(
