@@ -207,11 +207,11 @@ def compile_spread(runs: int, sweeps: tuple[str, ...] = ("joint",)) -> dict:
         for label, r in rows.items():
             r.append(compile_times(*cases[label]))
     return {
-        mode: {
+        label: {
             "runs": r,
             **{f"{k}_median": float(np.median([x[k] for x in r])) for k in r[0]},
         }
-        for mode, r in rows.items()
+        for label, r in rows.items()
     }
 
 

@@ -187,7 +187,7 @@ def local_derivatives(
         n_hess_colours = colouring.num_colours(hcol)
     else:
         hess_r, pos, n_hess_colours = _grouped_hessian(groups, hr, hc)
-        h_src = np.where(h_src < hr.size, pos[np.minimum(h_src, hr.size - 1)], h_src)
+        h_src = np.concatenate([pos, np.arange(hr.size, hr.size + cr.size)])[h_src]  # the cost's entries stay
     ccol = colouring.star_colouring(cr, cc, nw)
     hess_cost = compressed.stage_hessian(
         lambda w, sigma, last, p: sigma * cost(w, p, last), cr, cc, nw, colouring=ccol, args_axes=(None, 0, None)
