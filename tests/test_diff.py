@@ -24,7 +24,6 @@ pytest.importorskip("cyipopt")
 
 from jaxhumanoid import diff as S  # noqa: E402
 from jaxhumanoid.outputs import cli  # noqa: E402
-from jaxhumanoid.runtime import enable_compilation_cache  # noqa: E402
 from jaxhumanoid.strategy.problem import build_problem  # noqa: E402
 
 TOL = S.FD_TOL  # 1e-4 relative, 2-norm
@@ -34,13 +33,6 @@ ALL_GROUPS = S.GROUPS + ("goal",)
 # default run: every parameter group on T3 and two on T1 (warm re-solves dominate the runtime)
 DEFAULT_CASES = (("T3", ALL_GROUPS), ("T1", ("weights", "goal")))
 SLOW_CASES = (("T1", ALL_GROUPS), ("T2", ALL_GROUPS), ("T4", ALL_GROUPS))
-
-
-@pytest.fixture(scope="module", autouse=True)
-def _compilation_cache():
-    # every IPOPT solve jits its callbacks afresh (solvers.ipopt); the disk cache saves the
-    # XLA compile of the many warm re-solves here
-    enable_compilation_cache()
 
 
 @pytest.fixture(scope="module")
