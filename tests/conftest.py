@@ -1,5 +1,5 @@
-"""Test-session set-up: the project's persistent compilation cache from the first test on, and
-compiled programs released after each test module so they do not pile up in one process.
+"""The project's persistent compilation cache for every test, and compiled programs released after
+each test module so they do not pile up in one process.
 
 The cache is the one the command line uses (``runtime.enable_compilation_cache``: ``$JAXHUMANOID_CACHE``
 or ``~/.cache/jaxhumanoid/jax``), so a rerun reads what the last run compiled; the notebooks' kernels
@@ -16,10 +16,7 @@ import pytest
 from jaxhumanoid.runtime import enable_compilation_cache
 from jaxhumanoid.strategy import problem
 
-
-@pytest.fixture(autouse=True, scope="session")
-def _persistent_compilation_cache():
-    enable_compilation_cache()
+enable_compilation_cache()
 
 
 @pytest.fixture(autouse=True, scope="module")
