@@ -1,4 +1,5 @@
-"""Shared helpers of the benchmark and study scripts: medians of repeated runs, JSON and table output."""
+"""Shared helpers of the benchmark and study scripts: medians of repeated runs, JSON and table output,
+the benchmarks' tasks."""
 
 from __future__ import annotations
 
@@ -82,3 +83,11 @@ def show_table(text: str, path: str | None) -> None:
     print(text)
     if path:
         pathlib.Path(path).write_text(text + "\n")
+
+
+def bench_task(key: str):
+    """The benchmarks' workload for the built-in task ``key``: that task without a contact-force
+    limit (T3 carries one), so that what a benchmark times does not move with the task's posing."""
+    from jaxhumanoid.ocp.tasks import NO_FORCE_LIMIT, with_force_limit
+
+    return with_force_limit(key, NO_FORCE_LIMIT)

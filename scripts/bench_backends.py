@@ -15,7 +15,7 @@ import time
 import casadi as ca
 import jax
 import numpy as np
-from _bench import time_fn, write
+from _bench import bench_task, time_fn, write
 
 import jaxhumanoid  # noqa: F401
 from jaxhumanoid.strategy.problem import build_problem
@@ -88,7 +88,7 @@ def main():
         for task in args.tasks:
             rec = {}
             for solver in ("ipopt", "casadi"):
-                sol = solve(task, "A,F+C,2S", solver=solver, N=args.N)
+                sol = solve(bench_task(task), "A,F+C,2S", solver=solver, N=args.N)
                 rec[solver] = {
                     "success": sol.success,
                     "iterations": [s.iterations for s in sol.stages],

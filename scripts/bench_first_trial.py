@@ -22,7 +22,7 @@ import json
 import pathlib
 
 import numpy as np
-from _bench import write
+from _bench import bench_task, write
 
 import jaxhumanoid as jh
 from jaxhumanoid.ocp import transcription as tr
@@ -50,7 +50,7 @@ def weights_of(task: str, draw: int, seed: int) -> np.ndarray:
 
 def nlps(task: str, w: np.ndarray) -> list[tuple[str, Problem, np.ndarray]]:
     """(name, problem, start) of stage 1 and of stage 2 from IPOPT's stage-1 solution."""
-    t = jh.get_task(task)
+    t = bench_task(task)
     final = build_problem(t, SCHEME, N=100, weights=w)
     first = strat.stage_one_problem(t, final.scheme, final, strat.STAGE1_N, guess=strat.DEFAULT_GUESS)
     r1 = solve_ipopt(first.nlp, first.p, first.bounds, options=strat.STAGE1_DEFAULTS)

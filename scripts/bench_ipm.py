@@ -36,7 +36,7 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
-from _bench import write
+from _bench import bench_task, write
 
 import jaxhumanoid  # noqa: F401
 from jaxhumanoid.derivatives.stagewise import SWEEPS
@@ -54,10 +54,10 @@ SCHEME = "A,F+C,2S"
 
 def stage1_problem(task: str, N1: int = strat.STAGE1_N):
     """Stage 1 of 2S (pseudo-static, relaxed contact law, re-seated start) and the stage-2 problem."""
-    final = build_problem(task, parse_scheme(SCHEME), N=100)
+    final = build_problem(bench_task(task), parse_scheme(SCHEME), N=100)
     relaxed = ContactParams.relaxed()
     q1, _ = strat.reseat_for_contact(final.p, final.p.q_start, final.layout.active, relaxed)
-    first = build_problem(task, parse_scheme(SCHEME), N=N1, pseudo_static=True, contact=relaxed, q_start=q1)
+    first = build_problem(bench_task(task), parse_scheme(SCHEME), N=N1, pseudo_static=True, contact=relaxed, q_start=q1)
     return first, final
 
 
@@ -149,7 +149,7 @@ def whole_2s(task: str, runs: int) -> dict:
     for solver in ("ipm", "ipopt"):
         times, compile_s, sol = [], None, None
         for _ in range(runs):
-            sol = strat.solve(task, SCHEME, solver=solver)
+            sol = strat.solve(bench_task(task), SCHEME, solver=solver)
             times.append(sum(s.solve_time_s for s in sol.stages))
             compile_s = sum(s.compile_time_s for s in sol.stages) if compile_s is None else compile_s
         sols[solver] = sol

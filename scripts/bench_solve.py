@@ -16,7 +16,7 @@ import os
 import re
 
 import numpy as np
-from _bench import write
+from _bench import bench_task, write
 
 import jaxhumanoid  # noqa: F401
 from jaxhumanoid.ocp.scheme import parse_scheme
@@ -44,10 +44,10 @@ def main():
     for task in args.tasks:
         runs = []
         for _ in range(args.runs):
-            sol = strat.solve(task, "A,F+C,2S")
+            sol = strat.solve(bench_task(task), "A,F+C,2S")
             runs.append(sol)
         # per-iteration cost and derivative share of the dynamic stage, from one more IPOPT run
-        final = build_problem(task, parse_scheme("A,F+C,2S"), N=100)
+        final = build_problem(bench_task(task), parse_scheme("A,F+C,2S"), N=100)
         its = [s.iterations for s in runs[-1].stages]
         t1 = float(np.median([s.stages[0].solve_time_s for s in runs]))
         t2 = float(np.median([s.stages[1].solve_time_s for s in runs]))

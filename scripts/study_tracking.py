@@ -2,7 +2,7 @@
 
     python scripts/study_tracking.py [--tasks T1 T2 T3 T4 | examples/paper/T1.toml ...] [--trials 100]
         [--seed 0] [--plans DIR] [--out docs/tracking.json] [--lqr KEY=VALUE ...]
-        [--foot-margin LOAD FRICTION COP] [--N 100] [--qp-filter [LOAD FRICTION COP]] [--defects]
+        [--foot-margin LOAD FRICTION COP] [--N 100] [--contact-force-limit MG|none] [--qp-filter [LOAD FRICTION COP]] [--defects]
         [--ablation [mass length contact friction start_rad torque_noise_Nm]]
 
 The tables are copied into docs/tracking.md, which explains them.
@@ -10,7 +10,8 @@ The tables are copied into docs/tracking.md, which explains them.
 Each task (a built-in key or a task file) is solved with the defaults (A,F+C,2S, N = 100, IPOPT;
 a task file's own settings), on ``--N`` intervals and with ``--foot-margin`` when given, into
 ``--plans``/<label> (reused when a solution is already there; the label is the key, or the task
-file's folder and stem, with the margin and the grid appended when given), then ``jaxhumanoid.tracking.track`` runs ``--trials`` perturbed
+file's folder and stem, with the margin, the grid and ``--contact-force-limit`` appended when
+given), then ``jaxhumanoid.tracking.track`` runs ``--trials`` perturbed
 executions at the default perturbation, open loop and closed loop (and, with ``--qp-filter``,
 TVLQR through the steady-foot QP filter of ``jaxhumanoid.tracking.filter``, with its defaults or
 the given margin), as one batch each. Writes the
@@ -36,26 +37,30 @@ import numpy as np
 
 import jaxhumanoid as jh
 from jaxhumanoid.model.foot import FootMargin
-from jaxhumanoid.outputs.cli import with_overrides
+from jaxhumanoid.ocp.tasks import with_force_limit
+from jaxhumanoid.outputs.cli import force_limit_arg, with_overrides
 from jaxhumanoid.progress import Progress
 from jaxhumanoid.tracking import LQRWeights, Perturbation, track
 from jaxhumanoid.tracking.filter import SafetyFilter
 from jaxhumanoid.tracking.plan import interval_defects
 
 
-def label(task: str, margin, N) -> str:
-    """The row's name: the key T1..T4 or the task file's folder_stem, with the margin and the grid."""
+def label(task: str, margin, N, limit=None) -> str:
+    """The row's name: the key T1..T4 or the task file's folder_stem, with the margin, the grid and
+    the contact-force limit appended when given."""
     path = pathlib.Path(task)
     name = f"{path.parent.name}_{path.stem}" if path.suffix == ".toml" else task
     if margin is not None:
         name += " margin " + "/".join(f"{v:g}" for v in margin)
-    return name + (f" N={N}" if N is not None else "")
+    return name + (f" N={N}" if N is not None else "") + (f" limit {limit}" if limit is not None else "")
 
 
-def plan(task: str, plans: pathlib.Path, margin=None, N=None) -> pathlib.Path:
-    out = plans / label(task, margin, N).replace(" ", "_").replace("/", "-")
+def plan(task: str, plans: pathlib.Path, margin=None, N=None, limit=None) -> pathlib.Path:
+    out = plans / label(task, margin, N, limit).replace(" ", "_").replace("/", "-")
     if not (out / "solution.npz").is_file():
         kwargs = jh.load_task_file(task).as_solve_kwargs() if task.endswith(".toml") else {"task": task}
+        if limit is not None:
+            kwargs["task"] = with_force_limit(kwargs["task"], limit)
         if margin is not None:
             kwargs["foot_margin"] = FootMargin(*margin)
         if N is not None:
@@ -176,7 +181,7 @@ def write_defects(args, rows, out: pathlib.Path) -> None:
     by_task = {r["task"]: r for r in rows}
     for task in args.tasks:
         by_task.setdefault(task, {"task": task})["defects_rad"] = defects(
-            jh.Solution.load(plan(task, pathlib.Path(args.plans), args.foot_margin, args.N))
+            jh.Solution.load(plan(task, pathlib.Path(args.plans), args.foot_margin, args.N, args.contact_force_limit))
         )
         print(task, by_task[task]["defects_rad"], flush=True)
     rows = sorted(by_task.values(), key=lambda r: r["task"])
@@ -221,6 +226,13 @@ def main() -> None:
     )
     parser.add_argument("--N", type=int, default=None, help="plan intervals (default the task's, 100)")
     parser.add_argument(
+        "--contact-force-limit",
+        type=force_limit_arg,
+        default=None,
+        metavar="MG",
+        help="plan with this contact-force limit, or 'none' (default the task's own)",
+    )
+    parser.add_argument(
         "--qp-filter",
         nargs="*",
         type=float,
@@ -253,11 +265,10 @@ def main() -> None:
         parser.error(f"--qp-filter: expected nothing or LOAD FRICTION COP, got {args.qp_filter}")
     safety = None if args.qp_filter is None else SafetyFilter(*args.qp_filter)
     for task in args.tasks:
-        src = plan(task, pathlib.Path(args.plans), args.foot_margin, args.N)
+        src = plan(task, pathlib.Path(args.plans), args.foot_margin, args.N, args.contact_force_limit)
+        name = label(task, args.foot_margin, args.N, args.contact_force_limit)
         for suffix, perturbation in perturbations(args.ablation):
-            rows = run_row(
-                args, src, label(task, args.foot_margin, args.N) + suffix, perturbation, weights, safety, rows
-            )
+            rows = run_row(args, src, name + suffix, perturbation, weights, safety, rows)
             out.write_text(json.dumps(rows, indent=2) + "\n")
             out.with_name(out.stem + "_table.md").write_text(markdown(rows))
             if any(r.get("qp_filter_success_rate") is not None for r in rows):

@@ -97,14 +97,35 @@ def test_the_limit_reaches_the_problem_from_a_task_file_the_command_line_and_a_s
     path.write_text(path.read_text().replace("1.5", "-2"))
     with pytest.raises(ValueError, match=r"t.toml.*contact_force_limit"):
         load_task_file(path)
-    args = build_parser().parse_args(["solve", "--task", "T3", "--contact-force-limit", "2"])
-    assert solve_arguments(args)["task"] == dataclasses.replace(get_task("T3"), contact_force_limit=2.0)
-    spec = {"tasks": ["T3"], "schemes": ["A,F+C,1S"], "N": [10]}
+    args = build_parser().parse_args(["solve", "--task", "T1", "--contact-force-limit", "2"])
+    assert solve_arguments(args)["task"] == dataclasses.replace(get_task("T1"), contact_force_limit=2.0)
+    spec = {"tasks": ["T1"], "schemes": ["A,F+C,1S"], "N": [10]}
     (plain,), (case,) = parse_spec(spec).cases, parse_spec({**spec, "contact_force_limit": 2.0}).cases
     assert "contact_force_limit" not in plain.params() and case.id != plain.id
-    assert base_problem(case)["task"].contact_force_limit == 2.0 and base_problem(plain)["task"] == get_task("T3")
+    assert base_problem(case)["task"].contact_force_limit == 2.0 and base_problem(plain)["task"] == get_task("T1")
     with pytest.raises(ValueError, match="contact_force_limit"):
         parse_spec({**spec, "contact_force_limit": 0})
+
+
+def test_t3_carries_its_own_limit_which_the_command_line_can_lift():
+    weight = float(np.sum(jh.PlanarChain.humanoid().m)) * jh.PlanarChain.humanoid().g
+    _, hi = force_bounds(build_problem("T3", "A,F+C,1S", N=8))
+    assert np.allclose(hi, 2.0 * weight)
+    for value, cap in (("none", None), ("NONE", None), ("1.5", 1.5)):
+        args = build_parser().parse_args(["solve", "--task", "T3", "--contact-force-limit", value])
+        assert solve_arguments(args)["task"] == dataclasses.replace(get_task("T3"), contact_force_limit=cap)
+    _, hi_free = force_bounds(
+        build_problem(dataclasses.replace(get_task("T3"), contact_force_limit=None), "A,F+C,1S", N=8)
+    )
+    assert np.all(hi_free == CONTACT_FORCE_LIMIT)
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["solve", "--task", "T3", "--contact-force-limit", "off"])
+    spec = {"tasks": ["T3"], "schemes": ["A,F+C,1S"], "N": [10]}
+    (plain,), (lifted,) = parse_spec(spec).cases, parse_spec({**spec, "contact_force_limit": "none"}).cases
+    assert base_problem(plain)["task"] == get_task("T3") and lifted.id != plain.id
+    assert base_problem(lifted)["task"] == dataclasses.replace(get_task("T3"), contact_force_limit=None)
+    with pytest.raises(ValueError, match="contact_force_limit.*'none'"):
+        parse_spec({**spec, "contact_force_limit": "off"})
 
 
 @pytest.fixture(scope="module")

@@ -174,7 +174,8 @@ class Task:
 
 
 # (7) per task: effort weights on the torques; T2 damps the fall with twice the acceleration
-# and torque-rate weights.
+# and torque-rate weights. T3 caps its body contacts at 2 M g: without the cap, rising from supine
+# pushes off at 3.4 M g; the other tasks' optima stay below 1 M g without one.
 _EFFORT = effort_weights(HUMANOID_STRENGTH)
 _CALM = Weights(w_u=_EFFORT, w_qd=1.0, w_dqd=0.02, w_du=1e-5)
 _FALL = Weights(w_u=_EFFORT, w_qd=1.0, w_dqd=0.04, w_du=2e-5)
@@ -182,10 +183,22 @@ _FALL = Weights(w_u=_EFFORT, w_qd=1.0, w_dqd=0.04, w_du=2e-5)
 TASKS = {
     "T1": Task("prone-to-stand", PRONE, STANDING, (1, 4, 5), weights=_CALM, key="T1"),
     "T2": Task("stand-to-prone", STANDING, PRONE, (1, 4, 5), weights=_FALL, key="T2"),
-    "T3": Task("supine-to-stand", SUPINE, STANDING, (2, 5), weights=_CALM, key="T3"),
+    "T3": Task("supine-to-stand", SUPINE, STANDING, (2, 5), weights=_CALM, key="T3", contact_force_limit=2.0),
     "T4": Task("stand-to-supine", STANDING, SUPINE, (2, 5), weights=_CALM, key="T4"),
 }
 _BY_NAME = {t.name: t for t in TASKS.values()}
+
+
+NO_FORCE_LIMIT = "none"  # a contact_force_limit that lifts a task's own limit (command line, study spec)
+
+
+def with_force_limit(task, limit: float | str) -> Task:
+    """``task`` (a Task or key) with ``contact_force_limit`` = ``limit``: body weights, or
+    ``NO_FORCE_LIMIT`` for none."""
+    cap = None if limit == NO_FORCE_LIMIT else limit
+    if isinstance(cap, str):
+        raise ValueError(f"contact_force_limit: expected body weights or {NO_FORCE_LIMIT!r}, got {limit!r}")
+    return dataclasses.replace(get_task(task), contact_force_limit=cap)
 
 
 def get_task(key: str) -> Task:

@@ -18,7 +18,7 @@ from jaxhumanoid.model.foot import FootMargin
 from jaxhumanoid.model.params import PlanarChain
 from jaxhumanoid.ocp.scaling import SCALINGS
 from jaxhumanoid.ocp.scheme import TABLE2_SCHEMES
-from jaxhumanoid.ocp.tasks import TASKS, get_task
+from jaxhumanoid.ocp.tasks import NO_FORCE_LIMIT, TASKS, get_task, with_force_limit
 from jaxhumanoid.outputs import plots, timeline, tracking_plots
 from jaxhumanoid.outputs.animation import animate
 from jaxhumanoid.progress import IterationLine, Progress
@@ -136,8 +136,20 @@ def solve_arguments(args) -> dict:
     if getattr(args, "foot_margin", None) is not None:
         base["foot_margin"] = FootMargin(*args.foot_margin)
     if getattr(args, "contact_force_limit", None) is not None:
-        base["task"] = dataclasses.replace(get_task(base["task"]), contact_force_limit=args.contact_force_limit)
+        base["task"] = with_force_limit(base["task"], args.contact_force_limit)
     return {**base, **settings}
+
+
+def force_limit_arg(text: str) -> float | str:
+    """``--contact-force-limit``: MG body weights, or ``none``, which lifts a task's own limit."""
+    if text.strip().lower() == NO_FORCE_LIMIT:
+        return NO_FORCE_LIMIT
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected body weights (a number) or {NO_FORCE_LIMIT!r}, got {text!r}"
+        ) from None
 
 
 def cmd_solve(args) -> int:
@@ -433,11 +445,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--contact-force-limit",
-        type=float,
+        type=force_limit_arg,
         default=None,
         metavar="MG",
-        help="cap every body contact's normal force at MG body weights (overrides a task file's "
-        "[task] contact_force_limit)",
+        help="cap every body contact's normal force at MG body weights, or 'none' for no cap (overrides "
+        "the task's own limit: T3's 2, a task file's [task] contact_force_limit)",
     )
     p.add_argument("--out", default="out/solve")
     p.add_argument("--animate", action="store_true", help="also write animation.gif")

@@ -22,7 +22,7 @@ import numpy as np
 
 from jaxhumanoid.diff.inverse import fit_task_weights
 from jaxhumanoid.model.params import ContactParams, PlanarChain
-from jaxhumanoid.ocp.tasks import Task, get_task
+from jaxhumanoid.ocp.tasks import Task, get_task, with_force_limit
 from jaxhumanoid.runtime import enable_compilation_cache
 from jaxhumanoid.strategy.posture import find_equilibrium
 from jaxhumanoid.strategy.problem import Problem, problem_from_settings
@@ -53,7 +53,7 @@ def base_problem(case: Case) -> dict[str, Any]:
         if getattr(case, key) is not None:
             kwargs[key] = getattr(case, key)
     if case.contact_force_limit is not None:
-        kwargs["task"] = dataclasses.replace(kwargs["task"], contact_force_limit=case.contact_force_limit)
+        kwargs["task"] = with_force_limit(kwargs["task"], case.contact_force_limit)
     return kwargs
 
 

@@ -10,7 +10,8 @@
     N1 = [10]                             # stage-1 intervals of 2S (default min(30, N))
     scaling = "physical"                  # the NLPs' units (``ocp.scaling.SCALINGS``; default the task's)
     guess = "static_path"                 # the first stage's initial guess (``GUESSES``; default the task's)
-    contact_force_limit = 2.0             # cap on every body contact's normal force (M g; default the task's)
+    contact_force_limit = 2.0             # cap on every body contact's normal force (M g, or "none";
+                                          # default the task's)
     save = true                           # write each solution to DIR/cases/<id>/ (default true)
     [options]                             # solver options of every case (optional)
     tol = 1e-8
@@ -55,7 +56,7 @@ import numpy as np
 
 from jaxhumanoid.ocp.scaling import SCALINGS
 from jaxhumanoid.ocp.scheme import parse_scheme
-from jaxhumanoid.ocp.tasks import TASKS, get_task
+from jaxhumanoid.ocp.tasks import NO_FORCE_LIMIT, TASKS, get_task
 from jaxhumanoid.runtime import read_toml
 from jaxhumanoid.strategy.problem import GUESSES
 from jaxhumanoid.strategy.solve import SOLVERS
@@ -112,7 +113,7 @@ class Case:
     T: float | None
     N1: int | None = None
     scaling: str | None = None
-    contact_force_limit: float | None = None
+    contact_force_limit: float | str | None = None
     guess: str | None = None
     options: tuple[tuple[str, Any], ...] = ()
     factors: tuple[tuple[str, float], ...] = ()
@@ -331,8 +332,10 @@ def _solve_cases(data: Mapping, base: pathlib.Path) -> tuple[list[Case], tuple[s
     if guess is not None and guess not in GUESSES:
         raise ValueError(f"guess: expected one of {GUESSES}, got {guess!r}")
     cap = data.get("contact_force_limit")
-    if cap is not None:
-        cap = float(_positive("contact_force_limit", cap))
+    if cap is not None and cap != NO_FORCE_LIMIT:
+        if isinstance(cap, bool) or not isinstance(cap, (int, float)) or not 0 < cap < math.inf:
+            raise ValueError(f"contact_force_limit: expected body weights > 0 or {NO_FORCE_LIMIT!r}, got {cap!r}")
+        cap = float(cap)
     options = data.get("options", {})
     if not isinstance(options, dict):
         raise ValueError(f"options: expected a table of solver options, got {options!r}")
