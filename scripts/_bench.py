@@ -11,6 +11,8 @@ import time
 import jax
 import numpy as np
 
+from jaxhumanoid.ocp.tasks import NO_FORCE_LIMIT, Task, with_force_limit
+
 
 def time_fn(fn, *args, repeats: int = 50) -> dict:
     """Compile time (first call), then median / min wall time and median CPU time (this process,
@@ -85,9 +87,7 @@ def show_table(text: str, path: str | None) -> None:
         pathlib.Path(path).write_text(text + "\n")
 
 
-def bench_task(key: str):
+def bench_task(key: str) -> Task:
     """The benchmarks' workload for the built-in task ``key``: that task without a contact-force
     limit (T3 carries one), so that what a benchmark times does not move with the task's posing."""
-    from jaxhumanoid.ocp.tasks import NO_FORCE_LIMIT, with_force_limit
-
     return with_force_limit(key, NO_FORCE_LIMIT)
