@@ -54,10 +54,11 @@ SCHEME = "A,F+C,2S"
 
 def stage1_problem(task: str, N1: int = strat.STAGE1_N):
     """Stage 1 of 2S (pseudo-static, relaxed contact law, re-seated start) and the stage-2 problem."""
-    final = build_problem(bench_task(task), parse_scheme(SCHEME), N=100)
+    t = bench_task(task)
+    final = build_problem(t, parse_scheme(SCHEME), N=100)
     relaxed = ContactParams.relaxed()
     q1, _ = strat.reseat_for_contact(final.p, final.p.q_start, final.layout.active, relaxed)
-    first = build_problem(bench_task(task), parse_scheme(SCHEME), N=N1, pseudo_static=True, contact=relaxed, q_start=q1)
+    first = build_problem(t, parse_scheme(SCHEME), N=N1, pseudo_static=True, contact=relaxed, q_start=q1)
     return first, final
 
 

@@ -333,9 +333,11 @@ def _solve_cases(data: Mapping, base: pathlib.Path) -> tuple[list[Case], tuple[s
         raise ValueError(f"guess: expected one of {GUESSES}, got {guess!r}")
     cap = data.get("contact_force_limit")
     if cap is not None and cap != NO_FORCE_LIMIT:
-        if isinstance(cap, bool) or not isinstance(cap, (int, float)) or not 0 < cap < math.inf:
-            raise ValueError(f"contact_force_limit: expected body weights > 0 or {NO_FORCE_LIMIT!r}, got {cap!r}")
-        cap = float(cap)
+        try:
+            cap = float(_positive("contact_force_limit", cap))
+        except ValueError:
+            want = f"body weights > 0 or {NO_FORCE_LIMIT!r}"
+            raise ValueError(f"contact_force_limit: expected {want}, got {cap!r}") from None
     options = data.get("options", {})
     if not isinstance(options, dict):
         raise ValueError(f"options: expected a table of solver options, got {options!r}")
