@@ -7,6 +7,7 @@ import pytest
 
 from jaxhumanoid.model import contact as ct
 from jaxhumanoid.ocp import transcription as tr
+from jaxhumanoid.ocp.tasks import CONTACT_FORCE_LIMIT
 from jaxhumanoid.solvers.result import NLPResult
 from jaxhumanoid.strategy import solve as strat
 from jaxhumanoid.strategy.problem import build_problem
@@ -60,12 +61,16 @@ def test_failed_stage_one_retries_with_the_fallback_and_counts_every_run(monkeyp
     failing = lambda *a: dataclasses.replace(fake_run(*a), status="Error", success=False)  # noqa: E731
     monkeypatch.setattr(strat, "_run_solver", failing)
     sol = strat.solve("T1", "A,F+C,2S", solver=solver, N=10, N1=5, **paper)
-    runs = 1 + len(strat.STAGE1_FALLBACKS)
+    # T1 has no force limit: the runs that only lift it are skipped, those with twice the torque box run
+    kept = [fb for fb in strat.STAGE1_FALLBACKS if not fb.lift_force_limit or fb.strength != 1.0]
+    runs = 1 + len(kept)
     assert len(calls) == runs + 1 and sol.stages[0].status == "Error" and sol.stages[0].attempts == runs
-    assert not sol.success
+    assert not sol.success and not sol.stages[0].force_limit_lifted and sol.stages[0].strength_factor == 1.0
+    u_max = [np.max(c[3].full(c[3].bounds.xu)[:-1, c[3].layout.stage_slices()["u"]]) for c in calls]
+    assert u_max[:-3] == [u_max[0]] * (runs - 2) and u_max[-3:-1] == [2 * u_max[0]] * 2 and u_max[-1] == u_max[0]
     x = [c[2] for c in calls[:runs]]
     adaptive = ["mu_strategy" in c[1] for c in calls[:runs]]
-    assert adaptive == [False] + [fb.options.get("mu_strategy") == "adaptive" for fb in strat.STAGE1_FALLBACKS]
+    assert adaptive == [False] + [fb.options.get("mu_strategy") == "adaptive" for fb in kept]
     # the other guess is the inverse-dynamics one of the same stage-1 problem
     np.testing.assert_array_equal(x[1], strat.with_guess(calls[0][3], "inverse_dynamics").bounds.x0)
     assert np.max(np.abs(x[1] - x[0])) > 1.0  # torques and forces of the inverse dynamics
@@ -75,6 +80,58 @@ def test_failed_stage_one_retries_with_the_fallback_and_counts_every_run(monkeyp
     assert 0 < np.max(np.abs(x[4] - x[0])) < 10 * strat.STAGE1_RESTART_SIGMA
     assert 0 < np.max(np.abs(x[5] - x[1])) < 10 * strat.STAGE1_RESTART_SIGMA
     np.testing.assert_array_equal(x[6], x[4])
+
+
+def test_stage_one_of_a_task_with_a_force_limit_falls_back_to_none_and_stage_two_keeps_it(monkeypatch):
+    calls = []
+
+    def fake_run(solver, problem, x0, options, verbose, progress=None, scaling="none"):
+        calls.append((problem, np.array(x0)))
+        limited = problem.task.contact_force_limit is not None
+        fail = problem.layout.pseudo_static and limited
+        return _fake_result(problem, x0, "Infeasible_Problem_Detected" if fail else "Solve_Succeeded", 7)
+
+    monkeypatch.setattr(strat, "_run_solver", fake_run)
+    with pytest.warns(UserWarning, match="stage 1 failed .* solved with no contact-force limit; "):
+        sol = strat.solve("T3", "A,F+C,2S", N=10, N1=5, guess="linear", handover="direct")
+    runs = 2 + sum(not fb.lift_force_limit for fb in strat.STAGE1_FALLBACKS)
+    first, second = sol.stages
+    assert first.success and first.force_limit_lifted and first.attempts == runs and first.iterations == 7 * runs
+    assert [c[0].task.contact_force_limit for c in calls] == [2.0] * (runs - 1) + [None, 2.0]
+    lifted, final = calls[runs - 1][0], calls[runs][0]
+    assert lifted.layout.N == 5 and not lifted.layout.force_rows
+    f1 = lifted.layout.stage_slices()["f"]
+    assert np.max(lifted.full(lifted.bounds.xu)[:-1, f1]) == CONTACT_FORCE_LIMIT
+    # stage 2 is posed with the limit, from stage 1's solution clipped into its bounds
+    weight = float(np.sum(final.p.model.m)) * float(final.p.model.g)
+    f2 = final.layout.stage_slices()["f"]
+    assert np.max(final.full(final.bounds.xu)[:-1, f2]) == pytest.approx(2.0 * weight)
+    x2 = calls[runs][1]
+    assert np.all(x2 >= final.bounds.xl) and np.all(x2 <= final.bounds.xu)
+    assert not second.force_limit_lifted and first.strength_factor == 1.0
+    # the same task in which stage 1 succeeds under its limit never lifts it
+    calls.clear()
+    monkeypatch.setattr(strat, "_run_solver", lambda *a, **k: _fake_result(a[1], a[2]))
+    sol = strat.solve("T3", "A,F+C,2S", N=10, N1=5, guess="linear", handover="direct")
+    assert sol.stages[0].attempts == 1 and not sol.stages[0].force_limit_lifted
+
+
+def test_stage_one_that_fails_within_the_strengths_falls_back_to_twice_the_torque_box(monkeypatch):
+    def fake_run(solver, problem, x0, options, verbose, progress=None, scaling="none"):
+        strong = np.max(problem.full(problem.bounds.xu)[:-1, problem.layout.stage_slices()["u"]]) > 600.0
+        fail = problem.layout.pseudo_static and not strong  # the strongest joint holds 500 N m
+        return _fake_result(problem, x0, "Infeasible_Problem_Detected" if fail else "Solve_Succeeded", 3)
+
+    monkeypatch.setattr(strat, "_run_solver", fake_run)
+    with pytest.warns(UserWarning, match=r"solved with torque box x2; the dynamic stages keep the task's bounds"):
+        sol = strat.solve("T1", "A,F+C,2S", N=10, N1=5, guess="linear", handover="direct")
+    first = sol.stages[0]
+    assert sol.success and first.strength_factor == 2.0 and not first.force_limit_lifted
+    assert first.attempts == 2 + sum(not fb.lift_force_limit for fb in strat.STAGE1_FALLBACKS)
+    body = strat.stage_one_problem("T1", "A,F+C,2S", strat.build_problem("T1", "A,F+C,2S", N=10), 5, strength=2.0)
+    np.testing.assert_array_equal(
+        body.model.u_max, 2.0 * np.asarray(strat.build_problem("T1", "A,F+C,1S", N=5).model.u_max)
+    )
 
 
 def test_law_path_runs_geometrically_from_the_relaxed_to_the_nominal_law():

@@ -49,6 +49,8 @@ class StageStats:
     attempts: int = 1  # solver runs (a stage-1 fallback or a continuation step adds one)
     start_violation: float = float("nan")  # max constraint violation at the stage's start point
     runs: tuple[int, ...] = ()  # iterations of each solver run, in order
+    force_limit_lifted: bool = False  # stage 1 solved only without the task's contact-force limit
+    strength_factor: float = 1.0  # stage 1 solved only with its torque box scaled by this factor
 
 
 @dataclasses.dataclass

@@ -33,7 +33,7 @@ from jaxhumanoid.model.params import ContactParams, FootParams, PlanarChain
 from jaxhumanoid.ocp import transcription as tr
 from jaxhumanoid.ocp.scaling import as_jax, check_scaling, physical_scaling, scaled_bounds, scaled_nlp
 from jaxhumanoid.ocp.scheme import parse_scheme
-from jaxhumanoid.ocp.tasks import Task, Weights, get_task
+from jaxhumanoid.ocp.tasks import NO_FORCE_LIMIT, Task, Weights, get_task, with_force_limit
 from jaxhumanoid.solvers.ipm import solve_ipm
 from jaxhumanoid.solvers.ipopt import solve_ipopt
 from jaxhumanoid.solvers.result import IterationCallback, NLPResult, constraint_violation, unscaled, unscaled_progress
@@ -55,8 +55,13 @@ STAGE2_DEFAULTS = {"mu_init": 1e-3, "bound_push": 1e-6, "bound_frac": 1e-6}
 # 1e-4 apart end in different optima or fail (scripts/study_stage1.py). Each failed run is followed
 # by the next fallback, in order, by every solver. The two guesses fail on different problems (on
 # perturbed T1 the inverse-dynamics guess fails where the linear one converges, on perturbed T3 the
-# other way round: docs/results.md), so every fallback is tried from both. The iterations and times
-# of every run add up.
+# other way round: docs/results.md), so every fallback is tried from both. The final problem's
+# bounds can make stage 1 infeasible from every start: a quasi-static motion, without inertia, can
+# need more force or torque than a dynamic one (perturbed T3 under its contact-force limit,
+# perturbed T1 within the strengths). The last fallbacks therefore relax stage 1's bounds, first
+# without the task's contact-force limit, then with twice the torque box too; the dynamic stages
+# keep the task's bounds and bring the motion back within them. The iterations and times of every
+# run add up.
 STAGE1_RESTART_SIGMA = 1e-4
 
 
@@ -64,11 +69,22 @@ STAGE1_RESTART_SIGMA = 1e-4
 class Fallback:
     """One more run of a failed stage 1: solver ``options`` on top of the stage's; from the other
     guess of ``GUESSES`` when ``other_guess``; with ``seed``, every entry of the guess moved by
-    ``STAGE1_RESTART_SIGMA`` times a standard normal draw of that fixed seed."""
+    ``STAGE1_RESTART_SIGMA`` times a standard normal draw of that fixed seed; without the task's
+    contact-force limit when ``lift_force_limit`` (skipped for a task that has none, unless the
+    strength changes too); with the torque box u_max scaled by ``strength``."""
 
     options: dict
     seed: int | None = None
     other_guess: bool = False
+    lift_force_limit: bool = False
+    strength: float = 1.0
+
+    def relaxed(self, task: Task) -> str:
+        """How the run relaxes ``task``'s bounds, as words to append ("" when it does not)."""
+        parts = [f"torque box x{self.strength:g}"] if self.strength != 1.0 else []
+        if self.lift_force_limit and task.contact_force_limit is not None:
+            parts.append("no contact-force limit")
+        return "" if not parts else " with " + ", ".join(parts)
 
 
 _ADAPTIVE = {"mu_strategy": "adaptive"}
@@ -80,6 +96,10 @@ STAGE1_FALLBACKS: tuple[Fallback, ...] = (
     Fallback({}, 1, True),
     Fallback(_ADAPTIVE, 1, False),
     Fallback(_ADAPTIVE, 1, True),
+    Fallback({}, None, False, lift_force_limit=True),
+    Fallback({}, None, True, lift_force_limit=True),
+    Fallback({}, None, False, lift_force_limit=True, strength=2.0),
+    Fallback({}, None, True, lift_force_limit=True, strength=2.0),
 )
 
 
@@ -278,12 +298,18 @@ def with_law(problem: Problem, law: ContactParams) -> Problem:
     return dataclasses.replace(problem, p=dataclasses.replace(problem.p, contact=law, q_start=jnp.asarray(q_start)))
 
 
-def stage_one_problem(task, scheme, final: Problem, N1: int, contact_stage1=None, guess: str = "linear") -> Problem:
+def stage_one_problem(
+    task, scheme, final: Problem, N1: int, contact_stage1=None, guess: str = "linear", strength: float = 1.0
+) -> Problem:
     """Stage 1 of 2S for the final problem ``final``: the pseudo-static problem (8) on N1 intervals
     under ``contact_stage1`` (default ``ContactParams.relaxed()``), from the start posture re-seated
-    for that law, with the final problem's horizon, weights, body and foot, and initial ``guess``."""
+    for that law, with the final problem's horizon, weights, body and foot, and initial ``guess``;
+    ``strength`` scales the body's torque box u_max (the cost keeps the task's weights)."""
     law = ContactParams.relaxed() if contact_stage1 is None else contact_stage1
     q_start1, _ = reseat_for_contact(final.p, final.p.q_start, final.layout.active, law)
+    body = final.model
+    if strength != 1.0:
+        body = dataclasses.replace(body, u_max=strength * np.asarray(body.u_max))
     return build_problem(
         task,
         scheme,
@@ -293,7 +319,7 @@ def stage_one_problem(task, scheme, final: Problem, N1: int, contact_stage1=None
         contact=law,
         q_start=q_start1,
         weights=np.asarray(final.p.weights),
-        model=final.model,
+        model=body,
         foot=final.p.foot,
         guess=guess,
         foot_margin=final.p.foot_margin,
@@ -307,16 +333,45 @@ def _stage_one(
     t0 = time.perf_counter()
     first = stage_one_problem(task, scheme, final, N1, contact_stage1, guess)
     setup_first = time.perf_counter() - t0
-    other = with_guess(first, next(g for g in GUESSES if g != guess))
+    starts = {(False, 1.0, False): first}  # (lift_force_limit, strength, other_guess) -> the problem a run starts
+
+    def start(lift: bool, strength: float, other: bool) -> Problem:
+        if (lift, strength, other) not in starts:
+            if other:
+                base = start(lift, strength, False)
+                starts[lift, strength, other] = with_guess(base, next(g for g in GUESSES if g != guess))
+            else:
+                posed = with_force_limit(task, NO_FORCE_LIMIT) if lift else task
+                problem = stage_one_problem(posed, scheme, final, N1, contact_stage1, guess, strength)
+                starts[lift, strength, other] = problem
+        return starts[lift, strength, other]
+
     name = "stage 1 (pseudo-static)"
     attempts = [_run_solver(solver, first, first.bounds.x0, options, verbose, _for_stage(progress, name), scaling)]
+    last = Fallback({})  # the run that produced attempts[-1]: the first, which relaxes nothing
     for fb in STAGE1_FALLBACKS:
         if attempts[-1].success:
             break
-        report = _for_stage(progress, f"{name}, attempt {len(attempts) + 1}")
-        x0 = restart_point(other if fb.other_guess else first, fb.seed)
-        attempts.append(_run_solver(solver, first, x0, {**options, **fb.options}, verbose, report, scaling))
+        if fb.lift_force_limit and not fb.relaxed(task):
+            continue  # the task has no limit: the same problem as an earlier run
+        problem = start(fb.lift_force_limit, fb.strength, False)
+        label = f"{name}, attempt {len(attempts) + 1}{fb.relaxed(task)}"
+        x0 = restart_point(start(fb.lift_force_limit, fb.strength, fb.other_guess), fb.seed)
+        run = _run_solver(solver, problem, x0, {**options, **fb.options}, verbose, _for_stage(progress, label), scaling)
+        attempts.append(run)
+        last = fb
     stats = _stage_stats(name, first, attempts, setup_first, first.bounds.x0)
+    if attempts[-1].success and last.relaxed(task):
+        stats = dataclasses.replace(
+            stats,
+            force_limit_lifted=last.lift_force_limit and task.contact_force_limit is not None,
+            strength_factor=last.strength,
+        )
+        warnings.warn(
+            f"task {task.key}: stage 1 failed under the final problem's bounds and was solved{last.relaxed(task)}; "
+            "the dynamic stages keep the task's bounds",
+            stacklevel=3,
+        )
     return stats, first.full(attempts[-1].x)
 
 
