@@ -88,11 +88,8 @@ def stage_one_record(case, variant: str) -> dict:
     options, scaling, strength, guess = VARIANTS[variant]
     stage_one, problem_one, solve = strat._stage_one, strat.stage_one_problem, run.solve
 
-    def stronger_problem(task, scheme, final, *a, **k):
-        body = dataclasses.replace(final.model, u_max=strength * np.asarray(final.model.u_max))
-        return problem_one(
-            task, scheme, dataclasses.replace(final, p=dataclasses.replace(final.p, model=body)), *a, **k
-        )
+    def stronger_problem(task, scheme, final, N1, contact_stage1=None, guess="linear", factor=1.0):
+        return problem_one(task, scheme, final, N1, contact_stage1, guess, strength * factor)
 
     def stopping_stage_one(*a, **k):
         raise _StageOneDone(stage_one(*a, **k)[0])

@@ -79,12 +79,12 @@ class Fallback:
     lift_force_limit: bool = False
     strength: float = 1.0
 
-    def relaxed(self, task: Task) -> str:
-        """How the run relaxes ``task``'s bounds, as words to append ("" when it does not)."""
-        parts = [f"torque box x{self.strength:g}"] if self.strength != 1.0 else []
-        if self.lift_force_limit and task.contact_force_limit is not None:
-            parts.append("no contact-force limit")
-        return "" if not parts else " with " + ", ".join(parts)
+    def relaxations(self, task: Task) -> tuple[str, ...]:
+        """How the run relaxes ``task``'s bounds, in words (empty when it does not)."""
+        lifts = self.lift_force_limit and task.contact_force_limit is not None
+        return ((f"torque box x{self.strength:g}",) if self.strength != 1.0 else ()) + (
+            ("no contact-force limit",) if lifts else ()
+        )
 
 
 _ADAPTIVE = {"mu_strategy": "adaptive"}
@@ -352,24 +352,23 @@ def _stage_one(
     for fb in STAGE1_FALLBACKS:
         if attempts[-1].success:
             break
-        if fb.lift_force_limit and not fb.relaxed(task):
+        relaxed = fb.relaxations(task)
+        if fb.lift_force_limit and not relaxed:
             continue  # the task has no limit: the same problem as an earlier run
         problem = start(fb.lift_force_limit, fb.strength, False)
-        label = f"{name}, attempt {len(attempts) + 1}{fb.relaxed(task)}"
+        label = f"{name}, attempt {len(attempts) + 1}" + (" with " + ", ".join(relaxed) if relaxed else "")
         x0 = restart_point(start(fb.lift_force_limit, fb.strength, fb.other_guess), fb.seed)
         run = _run_solver(solver, problem, x0, {**options, **fb.options}, verbose, _for_stage(progress, label), scaling)
         attempts.append(run)
         last = fb
     stats = _stage_stats(name, first, attempts, setup_first, first.bounds.x0)
-    if attempts[-1].success and last.relaxed(task):
-        stats = dataclasses.replace(
-            stats,
-            force_limit_lifted=last.lift_force_limit and task.contact_force_limit is not None,
-            strength_factor=last.strength,
-        )
+    relaxed = last.relaxations(task)
+    if attempts[-1].success and relaxed:
+        lifted = last.lift_force_limit and task.contact_force_limit is not None
+        stats = dataclasses.replace(stats, force_limit_lifted=lifted, strength_factor=last.strength)
         warnings.warn(
-            f"task {task.key}: stage 1 failed under the final problem's bounds and was solved{last.relaxed(task)}; "
-            "the dynamic stages keep the task's bounds",
+            f"task {task.key}: stage 1 failed under the final problem's bounds and was solved with "
+            f"{', '.join(relaxed)}; the dynamic stages keep the task's bounds",
             stacklevel=3,
         )
     return stats, first.full(attempts[-1].x)
