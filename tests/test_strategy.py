@@ -6,10 +6,12 @@ import numpy as np
 import pytest
 
 from jaxhumanoid.model import contact as ct
+from jaxhumanoid.model.params import ContactParams
 from jaxhumanoid.ocp import transcription as tr
-from jaxhumanoid.ocp.tasks import CONTACT_FORCE_LIMIT
+from jaxhumanoid.ocp.tasks import CONTACT_FORCE_LIMIT, get_task
 from jaxhumanoid.solvers.result import NLPResult
 from jaxhumanoid.strategy import solve as strat
+from jaxhumanoid.strategy.posture import rest_foot_rows
 from jaxhumanoid.strategy.problem import build_problem
 
 
@@ -193,6 +195,34 @@ def test_continuation_hands_over_along_the_law_path_and_stops_at_a_failure(monke
     assert sol.stages[2].status == "Restoration_Failed (law 2/3)" and sol.stages[2].runs == (13, 14)
 
 
+@pytest.mark.parametrize("fails", [1, 2])
+def test_failed_relaxed_law_dynamic_solve_reruns_from_the_same_start_with_a_cold_barrier(monkeypatch, fails):
+    """The relaxed-law dynamic solve that fails is rerun once, from stage 1's solution, with
+    ``RELAXED_DYNAMIC_FALLBACK``; the continuation goes on when the rerun succeeds, and the stage
+    fails with the rerun's status when it does not."""
+    calls = []
+
+    def fake_run(used, problem, x0, options, verbose, progress=None, scaling="none"):
+        calls.append((problem.layout.pseudo_static, np.asarray(x0).copy(), dict(options)))
+        fail = not problem.layout.pseudo_static and 2 <= len(calls) <= 1 + fails
+        return _fake_result(
+            problem, x0 if not fail else x0 + 1.0, "Infeasible_Problem_Detected" if fail else "Solve_Succeeded"
+        )
+
+    monkeypatch.setattr(strat, "_run_solver", fake_run)
+    sol = strat.solve("T1", "A,F+C,2S", N=10, N1=5, continuation_steps=2)
+    relaxed = sol.stages[1]
+    assert relaxed.runs == (10, 10) and relaxed.attempts == 2
+    np.testing.assert_array_equal(calls[2][1], calls[1][1])  # the rerun starts where the first run did
+    assert calls[1][2]["mu_init"] == strat.STAGE2_DEFAULTS["mu_init"]
+    assert {k: calls[2][2][k] for k in strat.RELAXED_DYNAMIC_FALLBACK} == strat.RELAXED_DYNAMIC_FALLBACK
+    if fails == 1:
+        assert relaxed.success and sol.success and len(calls) == 5  # + the two laws of stage 2
+    else:
+        assert not relaxed.success and relaxed.status == "Infeasible_Problem_Detected" and len(calls) == 3
+        assert not sol.success and len(sol.stages) == 2
+
+
 def test_bad_handover_settings_are_rejected_before_any_work():
     with pytest.raises(ValueError, match="handover"):
         strat.solve("T1", handover="homotopy")
@@ -200,3 +230,37 @@ def test_bad_handover_settings_are_rejected_before_any_work():
         strat.solve("T1", handover="continuation", continuation_steps=0)
     with pytest.raises(ValueError, match="stage1_solver"):
         strat.solve("T1", stage1_solver="snopt")
+
+
+def test_relaxed_stage_law_steps_towards_the_nominal_law_where_the_relaxed_law_unseats_the_start(monkeypatch):
+    """A perturbed T1 problem (the robustness study's draw 23): its foot carries little load, and
+    the start re-seated for the relaxed law puts the centre of pressure off the sole, so the
+    relaxed-law stages could not satisfy (5) on their frozen first interval. The first law of the
+    path that keeps (5) at rest is step 1; the nominal T1 keeps the relaxed law itself."""
+    law = ContactParams(kappa=88060.02386350394, f0=205.1929554480116, xhat=0.02860028135564743, mu=1.467176751666706)
+    start = np.array([3.282345, -0.248731, -0.324172, -4.519695, -1.372923])
+    final = build_problem(dataclasses.replace(get_task("T1"), start=start), "A,F+C,2S", N=10, T=5.0, contact=law)
+    relaxed = ContactParams.relaxed()
+
+    def rows(law_j):
+        q = strat.with_law(final, law_j).p.q_start
+        return rest_foot_rows(final.model, final.p.foot, law_j, q, final.layout.active)[0]
+
+    got, step = strat.relaxed_stage_law(final, relaxed, 4)
+    path = strat.law_path(relaxed, law, 4)
+    assert step == 1 and got == path[1]
+    assert rows(relaxed).min() < -10.0 and rows(got).min() >= 0.0  # the check can fail: the relaxed law breaks (5)
+    nominal = build_problem(get_task("T1"), "A,F+C,2S", N=10, T=5.0)
+    assert strat.relaxed_stage_law(nominal, relaxed, 4) == (relaxed, 0)
+    kappas = []
+
+    def fake_run(used, problem, x0, options, verbose, progress=None, scaling="none"):
+        kappas.append(float(problem.p.contact.kappa))
+        return _fake_result(problem, x0)
+
+    monkeypatch.setattr(strat, "_run_solver", fake_run)
+    task = dataclasses.replace(get_task("T1"), start=start)
+    with pytest.warns(UserWarning, match="relaxed-law stages use law 1/4"):
+        sol = strat.solve(task, "A,F+C,2S", N=10, N1=5, contact=law)
+    assert sol.stages[0].law_step == 1 and [s.law_step for s in sol.stages[1:]] == [0, 0]
+    np.testing.assert_allclose(kappas, [path[1].kappa] + [float(g.kappa) for g in strat.law_path(path[1], law, 4)])

@@ -165,15 +165,15 @@ def reseat_for_contact(p: tr.OCPParams, q, active, new_contact: ContactParams, i
     gaps = np.asarray(kin.contact_gaps(p.model, p.foot, q))[idx]
     f_nom = np.asarray(ct.normal_force(p.contact, gaps))
     q_new = seat_with_forces(p.model, p.foot, new_contact, q, active, f_nom, iters)
-    rows, u1 = _foot_rows(p.model, p.foot, p.contact, q, active)
-    rows_new, _ = _foot_rows(p.model, p.foot, new_contact, q_new, active)
+    rows, u1 = rest_foot_rows(p.model, p.foot, p.contact, q, active)
+    rows_new, _ = rest_foot_rows(p.model, p.foot, new_contact, q_new, active)
     if np.min(rows_new) < min(0.0, float(np.min(rows))):
         q_new = seat_with_forces(p.model, p.foot, new_contact, q, active, f_nom, 4 * iters, ankle_torque=u1)
     gaps_new = np.asarray(kin.contact_gaps(p.model, p.foot, q_new))[idx]
     return q_new, float(np.max(np.abs(gaps_new - gaps), initial=0.0))
 
 
-def _foot_rows(model, foot, contact, q, active) -> tuple[np.ndarray, float]:
+def rest_foot_rows(model, foot, contact, q, active) -> tuple[np.ndarray, float]:
     """The rows (5) at rest in posture q under ``contact`` (no margins), and the ankle torque u_1."""
     p = _params(model, foot, contact, q, active)
     u, _, f_c0, _ = _rest(p, jnp.asarray(q), tuple(active))

@@ -51,6 +51,7 @@ class StageStats:
     runs: tuple[int, ...] = ()  # iterations of each solver run, in order
     force_limit_lifted: bool = False  # stage 1 solved only without the task's contact-force limit
     strength_factor: float = 1.0  # stage 1 solved only with its torque box scaled by this factor
+    law_step: int = 0  # stage 1's law: step j of the path from the relaxed to the nominal law
 
 
 @dataclasses.dataclass
