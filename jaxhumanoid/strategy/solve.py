@@ -10,7 +10,8 @@ nominal law, or ``"continuation"``: stage 2 solved under a path of laws from sta
 nominal one (``law_path``), each solve warm-started from the last, every law with its start
 posture re-seated (``with_law``). The long first solve then runs under the relaxed law, and the
 later ones are short, local corrections, whose end depends on the stage-1 point but not on the
-backend (docs/results.md).
+backend (docs/results.md). Where the relaxed law cannot seat the start posture, the relaxed-law
+stages take the first law of that path that can (``relaxed_stage_law``).
 """
 
 from __future__ import annotations
@@ -316,13 +317,22 @@ def relaxed_stage_law(final: Problem, first: ContactParams, steps: int) -> tuple
     foot's rows (5) at rest; ``first`` itself (j = 0) on every problem of the robustness study but
     one. There a lightly loaded foot puts the centre of pressure off the sole under the relaxed
     law whatever the re-seat does, so stage 1's frozen first interval and the relaxed-law dynamic
-    solve are infeasible from every start; a step along the path seats it (docs/results.md)."""
+    solve are infeasible from every start; a step along the path seats it (docs/results.md). A
+    step other than 0 is announced by a warning."""
     laws = (first, *law_path(first, final.p.contact, steps)[1:])
-    for j, law in enumerate(laws[:-1]):
-        rows, _ = rest_foot_rows(final.model, final.p.foot, law, with_law(final, law).p.q_start, final.layout.active)
-        if np.min(rows) >= 0.0:
-            return law, j
-    return laws[-1], steps
+
+    def seats(law: ContactParams) -> bool:
+        q = with_law(final, law).p.q_start
+        return bool(np.min(rest_foot_rows(final.model, final.p.foot, law, q, final.layout.active)[0]) >= 0.0)
+
+    step = next((j for j, law in enumerate(laws[:-1]) if seats(law)), steps)
+    if step:
+        warnings.warn(
+            f"task {final.task.key}: the start posture breaks the foot's rows (5) at rest under the relaxed "
+            f"contact law; the relaxed-law stages use law {step}/{steps} of the path to the nominal law",
+            stacklevel=3,
+        )
+    return laws[step], step
 
 
 def stage_one_problem(
@@ -494,7 +504,8 @@ def solve(
     task's), used by both stages. ``model`` (default ``PlanarChain.humanoid()``) and ``foot``
     (default ``FootParams.paper()``) apply to both stages; ``contact`` (default nominal) is the law
     of the dynamic stage, ``contact_stage1`` (default ``ContactParams.relaxed()``) that of the
-    pseudo-static stage 1. ``guess`` is the initial guess of the first stage (``GUESSES``): the
+    pseudo-static stage 1 (a step towards ``contact`` where it cannot seat the start:
+    ``relaxed_stage_law``). ``guess`` is the initial guess of the first stage (``GUESSES``): the
     paper's linear one, or ``"inverse_dynamics"`` (default), the same motion with torques and
     forces that satisfy its dynamics (``transcription.inverse_dynamics_guess``). ``handover``
     (``HANDOVERS``) is how 2S passes from stage 1 to stage 2: ``"direct"`` (the paper's) or
@@ -561,13 +572,6 @@ def solve(
         stage1 = {**STAGE1_DEFAULTS, **(options or {}), **(stage1_options or {})}
         first = stage1_solver or solver
         law1, law_step = relaxed_stage_law(final, law1, continuation_steps)
-        if law_step:
-            warnings.warn(
-                f"task {task.key}: the start posture breaks the foot's rows (5) at rest under the relaxed "
-                f"contact law; the relaxed-law stages use law {law_step}/{continuation_steps} of the path "
-                "to the nominal law",
-                stacklevel=2,
-            )
         stats1, Z1 = _stage_one(task, scheme, first, final, N1, stage1, law1, guess, verbose, progress, scaling)
         stages.append(dataclasses.replace(stats1, law_step=law_step))
         Zf = interpolate_full(Z1, T, final.layout)
