@@ -21,6 +21,14 @@ sweep`` draws them: ``studies.run.solve_case``), and only its stage 1 runs: the 
                         then try the inverse-dynamics guess)
     static path         the static-path guess (``ocp.static_path``): postures the body can hold at rest
     mu_init 0.1         IPOPT's default initial barrier parameter instead of 1e-2
+    barrier_tol_factor 1000, mu_linear_decrease_factor 0.05
+                        leave each barrier subproblem earlier, or cut mu faster (IPOPT: 10, 0.2)
+    watchdog_shortened_iter_trigger 3
+                        IPOPT's watchdog after 3 shortened steps instead of 10
+    bound_mult_init_method mu-based
+                        bound multipliers mu / slack at the start instead of 1
+    bound_push 0.1      bound_push = bound_frac = 0.1: the start pushed further inside its bounds (1e-2)
+    alpha_for_y full    full steps in the equality multipliers (IPOPT: the primal step)
 
 Per variant: the largest constraint violation of stage 1's start, the first run's success and
 iterations, the stage's success after the fallbacks and its iterations over all runs (what the
@@ -70,6 +78,12 @@ VARIANTS = {
     "linear guess": Variant(guess="linear"),
     "static path": Variant(guess="static_path"),
     "mu_init 0.1": Variant(options={"mu_init": 0.1}),
+    "barrier_tol_factor 1000": Variant(options={"barrier_tol_factor": 1000.0}),
+    "mu_linear_decrease_factor 0.05": Variant(options={"mu_linear_decrease_factor": 0.05}),
+    "watchdog_shortened_iter_trigger 3": Variant(options={"watchdog_shortened_iter_trigger": 3}),
+    "bound_mult_init_method mu-based": Variant(options={"bound_mult_init_method": "mu-based"}),
+    "bound_push 0.1": Variant(options={"bound_push": 0.1, "bound_frac": 0.1}),
+    "alpha_for_y full": Variant(options={"alpha_for_y": "full"}),
 }
 
 
