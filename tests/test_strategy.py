@@ -195,11 +195,12 @@ def test_continuation_hands_over_along_the_law_path_and_stops_at_a_failure(monke
     assert sol.stages[2].status == "Restoration_Failed (law 2/3)" and sol.stages[2].runs == (13, 14)
 
 
-@pytest.mark.parametrize("fails", [1, 2])
+@pytest.mark.parametrize("fails", [1, 2, 3])
 def test_failed_relaxed_law_dynamic_solve_reruns_from_the_same_start_with_a_cold_barrier(monkeypatch, fails):
-    """The relaxed-law dynamic solve that fails is rerun once, from stage 1's solution, with
-    ``RELAXED_DYNAMIC_FALLBACK``; the continuation goes on when the rerun succeeds, and the stage
-    fails with the rerun's status when it does not."""
+    """The relaxed-law dynamic solve that fails is rerun from stage 1's solution with each of
+    ``RELAXED_DYNAMIC_FALLBACKS`` in turn (IPOPT's cold barrier, then with the adaptive update)
+    until one succeeds; the continuation goes on after a success, and the stage fails with the last
+    rerun's status when none does."""
     calls = []
 
     def fake_run(used, problem, x0, options, verbose, progress=None, scaling="none"):
@@ -211,15 +212,18 @@ def test_failed_relaxed_law_dynamic_solve_reruns_from_the_same_start_with_a_cold
 
     monkeypatch.setattr(strat, "_run_solver", fake_run)
     sol = strat.solve("T1", "A,F+C,2S", N=10, N1=5, continuation_steps=2)
-    relaxed = sol.stages[1]
-    assert relaxed.runs == (10, 10) and relaxed.attempts == 2
-    np.testing.assert_array_equal(calls[2][1], calls[1][1])  # the rerun starts where the first run did
+    relaxed, runs = sol.stages[1], min(fails + 1, 3)
+    assert relaxed.runs == (10,) * runs and relaxed.attempts == runs
     assert calls[1][2]["mu_init"] == strat.STAGE2_DEFAULTS["mu_init"]
-    assert {k: calls[2][2][k] for k in strat.RELAXED_DYNAMIC_FALLBACK} == strat.RELAXED_DYNAMIC_FALLBACK
-    if fails == 1:
-        assert relaxed.success and sol.success and len(calls) == 5  # + the two laws of stage 2
+    for k, rerun in enumerate(strat.RELAXED_DYNAMIC_FALLBACKS[: runs - 1], start=2):
+        np.testing.assert_array_equal(calls[k][1], calls[1][1])  # every rerun starts where the first run did
+        assert {key: calls[k][2].get(key) for key in rerun} == rerun
+    assert calls[2][2].get("mu_strategy") != "adaptive"  # the cold monotone rerun comes first
+    assert (calls[3][2].get("mu_strategy") == "adaptive") == (fails >= 2)
+    if fails < 3:
+        assert relaxed.success and sol.success and len(calls) == runs + 3  # + the two laws of stage 2
     else:
-        assert not relaxed.success and relaxed.status == "Infeasible_Problem_Detected" and len(calls) == 3
+        assert not relaxed.success and relaxed.status == "Infeasible_Problem_Detected" and len(calls) == 4
         assert not sol.success and len(sol.stages) == 2
 
 

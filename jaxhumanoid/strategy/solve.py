@@ -123,9 +123,12 @@ CONTINUATION_OPTIONS = {"mu_init": 1e-5}
 # The relaxed-law dynamic solve starts from stage 1's quasi-static motion with stage 2's small
 # barrier and bound push, which keep that start. Where the start is far from a dynamic motion, the
 # barrier stays stuck at the bounds (a perturbed T1 problem stops at 3063 iterations with a
-# violation of 226); the rerun pushes the start inside the bounds as a cold start does (IPOPT's
-# defaults), which converges there in 806 (docs/results.md).
-RELAXED_DYNAMIC_FALLBACK = {"mu_init": 1e-1, "bound_push": 1e-2, "bound_frac": 1e-2}
+# violation of 226). The reruns, from the same start, push it inside the bounds as a cold start
+# does (IPOPT's defaults; that T1 problem converges in 806), then add the adaptive barrier update
+# (a perturbed T2 problem with N1 = 50, infeasible with the monotone one, converges in 450;
+# docs/results.md).
+_COLD = {"mu_init": 1e-1, "bound_push": 1e-2, "bound_frac": 1e-2}
+RELAXED_DYNAMIC_FALLBACKS: tuple[dict, ...] = (_COLD, {**_COLD, **_ADAPTIVE})
 _LAW_FIELDS = tuple(f.name for f in dataclasses.fields(ContactParams))
 
 
@@ -609,7 +612,7 @@ def _run_path(
 
 def _continuation_stages(solvers, final: Problem, laws, x0, options, setup_time_s, verbose, progress, scaling):
     """The dynamic stages of a continuation hand-over: the first law (stage 1's) by ``solvers[0]``,
-    rerun from the same start with ``RELAXED_DYNAMIC_FALLBACK`` where it fails, then the path to
+    rerun from the same start with each of ``RELAXED_DYNAMIC_FALLBACKS`` while it fails, then the path to
     the nominal law by ``solvers[1]``. Returns (stats of both, x); a failed solve ends the path,
     and its stage reports its status with the law it failed at."""
     problems = [with_law(final, law) for law in laws]
@@ -620,9 +623,13 @@ def _continuation_stages(solvers, final: Problem, laws, x0, options, setup_time_
         (solvers[1], problems[1:], "stage 2 (dynamic)"),
     ):
         attempts = _run_path(solver, part, x, options, verbose, progress, name, scaling)
-        if not stats and not attempts[-1].success:
-            label, rerun = f"{name}, attempt 2", {**options, **RELAXED_DYNAMIC_FALLBACK}
-            attempts.append(_run_solver(solver, part[0], x, rerun, verbose, _for_stage(progress, label), scaling))
+        for rerun in RELAXED_DYNAMIC_FALLBACKS if not stats else ():
+            if attempts[-1].success:
+                break
+            label = f"{name}, attempt {len(attempts) + 1}"
+            attempts.append(
+                _run_solver(solver, part[0], x, {**options, **rerun}, verbose, _for_stage(progress, label), scaling)
+            )
         st = _stage_stats(name, part[-1], attempts, setup_time_s if not stats else 0.0, x)
         if len(attempts) < len(part):
             st = dataclasses.replace(st, status=f"{st.status} (law {len(attempts)}/{len(part)})", success=False)
