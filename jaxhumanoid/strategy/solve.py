@@ -86,11 +86,14 @@ class Fallback:
     lift_force_limit: bool = False
     strength: float = 1.0
 
+    def lifts_limit(self, task: Task) -> bool:
+        """Whether the run drops a contact-force limit that ``task`` has."""
+        return self.lift_force_limit and task.contact_force_limit is not None
+
     def relaxations(self, task: Task) -> tuple[str, ...]:
         """How the run relaxes ``task``'s bounds, in words (empty when it does not)."""
-        lifts = self.lift_force_limit and task.contact_force_limit is not None
         return ((f"torque box x{self.strength:g}",) if self.strength != 1.0 else ()) + (
-            ("no contact-force limit",) if lifts else ()
+            ("no contact-force limit",) if self.lifts_limit(task) else ()
         )
 
 
@@ -404,8 +407,7 @@ def _stage_one(
     stats = _stage_stats(name, first, attempts, setup_first, first.bounds.x0)
     relaxed = last.relaxations(task)
     if attempts[-1].success and relaxed:
-        lifted = last.lift_force_limit and task.contact_force_limit is not None
-        stats = dataclasses.replace(stats, force_limit_lifted=lifted, strength_factor=last.strength)
+        stats = dataclasses.replace(stats, force_limit_lifted=last.lifts_limit(task), strength_factor=last.strength)
         warnings.warn(
             f"task {task.key}: stage 1 failed under the final problem's bounds and was solved with "
             f"{', '.join(relaxed)}; the dynamic stages keep the task's bounds",
@@ -612,18 +614,18 @@ def _run_path(
 
 def _continuation_stages(solvers, final: Problem, laws, x0, options, setup_time_s, verbose, progress, scaling):
     """The dynamic stages of a continuation hand-over: the first law (stage 1's) by ``solvers[0]``,
-    rerun from the same start with each of ``RELAXED_DYNAMIC_FALLBACKS`` while it fails, then the path to
-    the nominal law by ``solvers[1]``. Returns (stats of both, x); a failed solve ends the path,
-    and its stage reports its status with the law it failed at."""
+    rerun from the same start with each of ``RELAXED_DYNAMIC_FALLBACKS`` while it fails, then the
+    path to the nominal law by ``solvers[1]``. Returns (stats of both, x); a failed solve ends the
+    path, and its stage reports its status with the law it failed at."""
     problems = [with_law(final, law) for law in laws]
     stats: list[StageStats] = []
     x = x0
-    for solver, part, name in (
-        (solvers[0], problems[:1], "stage 1 (dynamic, relaxed law)"),
-        (solvers[1], problems[1:], "stage 2 (dynamic)"),
+    for solver, part, name, reruns in (
+        (solvers[0], problems[:1], "stage 1 (dynamic, relaxed law)", RELAXED_DYNAMIC_FALLBACKS),
+        (solvers[1], problems[1:], "stage 2 (dynamic)", ()),
     ):
         attempts = _run_path(solver, part, x, options, verbose, progress, name, scaling)
-        for rerun in RELAXED_DYNAMIC_FALLBACKS if not stats else ():
+        for rerun in reruns:  # a one-problem part: rerun its solve
             if attempts[-1].success:
                 break
             label = f"{name}, attempt {len(attempts) + 1}"
