@@ -9,8 +9,8 @@ setting changed (the contact-force limit, the guess, N1): a problem is matched b
 since the changed setting changes the case ids. Only problems and solvers in both studies count
 (``--draws K``: draws < K). Per study: how many problems each solver solved in every stage, on how many all its
 solvers reached the same optimum (``studies.compare.agreement``: objectives within 1e-6 relative,
-joint trajectories within 1e-4 rad), how many of IPOPT's optima keep every contact force below
-2 M g, the median iterations of each stage and of all stages and the median objective (IPOPT);
+joint trajectories within 1e-4 rad), how many of IPOPT's optima keep every contact force at
+most 2 M g (a limit of 2 M g holds to 1e-6 M g), the median iterations of each stage and of all stages and the median objective (IPOPT);
 and, of the problems IPOPT solved in both, on how many OTHER ends lower, at the same objective
 or higher.
 """
@@ -30,6 +30,7 @@ from jaxhumanoid.studies.compare import OBJ_RTOL, agreement, outcome_of
 from jaxhumanoid.studies.table import latest_rows, read_table
 
 PEAK_M_G = 2.0
+PEAK_TOL = 1e-6  # M g: an optimum pinned at a limit of PEAK_M_G meets it to the solver's tolerance
 
 
 def problems(folder: str, draws: int | None) -> dict[tuple[str, int], dict[str, Mapping[str, Any]]]:
@@ -68,7 +69,7 @@ def study_summary(cases: Mapping[tuple[str, int], Mapping[str, Mapping[str, Any]
             for solves in cases.values()
             if len(solves) == len(solvers) > 1
         ),
-        "peak_below": sum(p < PEAK_M_G for p in peaks),
+        "peak_at_most": sum(p <= PEAK_M_G + PEAK_TOL for p in peaks),
         "peak_max": max(peaks) if peaks else None,
         "stage_iterations_median": {k: float(np.median(v)) for k, v in stages.items()},
         "iterations_median": float(np.median([r["iterations_total"] for r in ipopt])) if ipopt else None,
@@ -103,7 +104,7 @@ def table(labels: Sequence[str], summaries: Sequence[Mapping[str, Any]], vs: Map
         if what == "agree" and len(solvers) < 2:
             return "-"
         if what == "peak":
-            return f"{s['peak_below']}/{s['solved_by_ipopt']} (largest {s['peak_max']:.2f} M g)"
+            return f"{s['peak_at_most']}/{s['solved_by_ipopt']} (largest {s['peak_max']:.2f} M g)"
         if what == "stages":
             return " + ".join(f"{s['stage_iterations_median'].get(k, float('nan')):g}" for k in stage_names)
         return f"{s[what]:g}"
@@ -111,7 +112,7 @@ def table(labels: Sequence[str], summaries: Sequence[Mapping[str, Any]], vs: Map
     rows = [
         (f"every stage succeeded, {' / '.join(solvers)}", "succeeded"),
         (f"{' and '.join(solvers)} at the same optimum", "agree"),
-        (f"peak contact force below {PEAK_M_G:g} M g, of the solved (ipopt)", "peak"),
+        (f"peak contact force at most {PEAK_M_G:g} M g, of the solved (ipopt)", "peak"),
         (f"iterations per stage, median (ipopt): {' + '.join(stage_names)}", "stages"),
         ("iterations of all stages, median (ipopt)", "iterations_median"),
         ("objective, median (ipopt)", "objective_median"),

@@ -286,11 +286,14 @@ def draw_rng(seed: int, task: str, index: int, stream: int) -> np.random.Generat
 
 
 def sample(dist: str, args: list, rng: np.random.Generator) -> Any:
-    """One value of a distribution (``DISTRIBUTIONS``) from ``rng``."""
+    """One value of a distribution (``DISTRIBUTIONS``) from ``rng``. Log-uniform values go
+    through the C library's ``exp`` and ``log`` (nearly correctly rounded), not numpy's, whose
+    vectorised kernels round the last bit differently from one CPU to another: a case's id hashes
+    its values, so the same spec must draw the same bits everywhere."""
     if dist == "uniform":
         return float(rng.uniform(*args))
     if dist == "log_uniform":
-        return float(np.exp(rng.uniform(np.log(args[0]), np.log(args[1]))))
+        return math.exp(float(rng.uniform(math.log(args[0]), math.log(args[1]))))
     return args[int(rng.integers(len(args)))]
 
 
