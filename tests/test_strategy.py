@@ -236,7 +236,7 @@ def test_bad_handover_settings_are_rejected_before_any_work():
         strat.solve("T1", stage1_solver="snopt")
 
 
-def test_relaxed_stage_law_steps_towards_the_nominal_law_where_the_relaxed_law_unseats_the_start(monkeypatch):
+def test_relaxed_stage_problem_steps_towards_the_nominal_law_where_the_relaxed_law_unseats_the_start(monkeypatch):
     """A perturbed T1 problem (the robustness study's draw 23): its foot carries little load, and
     the start re-seated for the relaxed law puts the centre of pressure off the sole, so the
     relaxed-law stages could not satisfy (5) on their frozen first interval. The first law of the
@@ -250,16 +250,19 @@ def test_relaxed_stage_law_steps_towards_the_nominal_law_where_the_relaxed_law_u
         q = strat.with_law(final, law_j).p.q_start
         return rest_foot_rows(final.model, final.p.foot, law_j, q, final.layout.active)[0]
 
-    got, step = strat.relaxed_stage_law(final, relaxed, 4)
+    got, step = strat.relaxed_stage_problem(final, relaxed, 4)
     path = strat.law_path(relaxed, law, 4)
-    assert step == 1 and got == path[1]
-    assert rows(relaxed).min() < -10.0 and rows(got).min() >= 0.0  # the check can fail: the relaxed law breaks (5)
+    assert step == 1 and got.p.contact == path[1] and got.nlp is final.nlp
+    np.testing.assert_array_equal(got.p.q_start, strat.with_law(final, path[1]).p.q_start)
+    assert rows(relaxed).min() < -10.0 and rows(path[1]).min() >= 0.0  # the check can fail: the relaxed law breaks (5)
     nominal = build_problem(get_task("T1"), "A,F+C,2S", N=10, T=5.0)
-    assert strat.relaxed_stage_law(nominal, relaxed, 4) == (relaxed, 0)
-    kappas = []
+    seated, step = strat.relaxed_stage_problem(nominal, relaxed, 4)
+    assert step == 0 and seated.p.contact == relaxed
+    kappas, starts = [], []
 
     def fake_run(used, problem, x0, options, verbose, progress=None, scaling="none"):
         kappas.append(float(problem.p.contact.kappa))
+        starts.append(np.asarray(problem.p.q_start))
         return _fake_result(problem, x0)
 
     monkeypatch.setattr(strat, "_run_solver", fake_run)
@@ -268,3 +271,6 @@ def test_relaxed_stage_law_steps_towards_the_nominal_law_where_the_relaxed_law_u
         sol = strat.solve(task, "A,F+C,2S", N=10, N1=5, contact=law)
     assert sol.stages[0].law_step == 1 and [s.law_step for s in sol.stages[1:]] == [0, 0]
     np.testing.assert_allclose(kappas, [path[1].kappa] + [float(g.kappa) for g in strat.law_path(path[1], law, 4)])
+    # stage 1 and the relaxed-law dynamic solve start from the one posture seated for law 1
+    np.testing.assert_array_equal(starts[0], starts[1])
+    np.testing.assert_allclose(starts[0], got.p.q_start, atol=1e-5)  # solve seats the start first (5e-7 rad)

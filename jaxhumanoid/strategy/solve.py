@@ -11,7 +11,7 @@ nominal one (``law_path``), each solve warm-started from the last, every law wit
 posture re-seated (``with_law``). The long first solve then runs under the relaxed law, and the
 later ones are short, local corrections, whose end depends on the stage-1 point but not on the
 backend (docs/results.md). Where the relaxed law cannot seat the start posture, the relaxed-law
-stages take the first law of that path that can (``relaxed_stage_law``).
+stages take the first law of that path that can (``relaxed_stage_problem``).
 """
 
 from __future__ import annotations
@@ -317,28 +317,30 @@ def with_law(problem: Problem, law: ContactParams) -> Problem:
     return dataclasses.replace(problem, p=dataclasses.replace(problem.p, contact=law, q_start=jnp.asarray(q_start)))
 
 
-def relaxed_stage_law(final: Problem, first: ContactParams, steps: int) -> tuple[ContactParams, int]:
-    """The law of 2S's relaxed-law stages and its step j on ``law_path(first, nominal, steps)``:
-    the first law of that path under which the start, re-seated for it (``with_law``), keeps the
-    foot's rows (5) at rest; ``first`` itself (j = 0) on every problem of the robustness study but
-    one. There a lightly loaded foot puts the centre of pressure off the sole under the relaxed
-    law whatever the re-seat does, so stage 1's frozen first interval and the relaxed-law dynamic
-    solve are infeasible from every start; a step along the path seats it (docs/results.md). A
-    step other than 0 is announced by a warning."""
+def relaxed_stage_problem(final: Problem, first: ContactParams, steps: int) -> tuple[Problem, int]:
+    """The final problem as 2S's relaxed-law stages pose it, and the step j of its law on
+    ``law_path(first, nominal, steps)``: under the first law of that path for which the start,
+    re-seated (``with_law``), keeps the foot's rows (5) at rest; ``first`` itself (j = 0) on
+    every problem of the robustness study but one. There a lightly loaded foot puts the centre of
+    pressure off the sole under the relaxed law whatever the re-seat does, so stage 1's frozen
+    first interval and the relaxed-law dynamic solve are infeasible from every start; a step along
+    the path seats it (docs/results.md). A step other than 0 is announced by a warning."""
     laws = (first, *law_path(first, final.p.contact, steps)[1:])
 
-    def seats(law: ContactParams) -> bool:
-        q = with_law(final, law).p.q_start
-        return bool(np.min(rest_foot_rows(final.model, final.p.foot, law, q, final.layout.active)[0]) >= 0.0)
-
-    step = next((j for j, law in enumerate(laws[:-1]) if seats(law)), steps)
+    step, problem = steps, final  # the nominal law, where no earlier law seats the start
+    for j, law in enumerate(laws[:-1]):
+        seated = with_law(final, law)
+        rows, _ = rest_foot_rows(final.model, final.p.foot, law, seated.p.q_start, final.layout.active)
+        if np.min(rows) >= 0.0:
+            step, problem = j, seated
+            break
     if step:
         warnings.warn(
             f"task {final.task.key}: the start posture breaks the foot's rows (5) at rest under the relaxed "
             f"contact law; the relaxed-law stages use law {step}/{steps} of the path to the nominal law",
             stacklevel=3,
         )
-    return laws[step], step
+    return problem, step
 
 
 def stage_one_problem(
@@ -346,10 +348,12 @@ def stage_one_problem(
 ) -> Problem:
     """Stage 1 of 2S for the final problem ``final``: the pseudo-static problem (8) on N1 intervals
     under ``contact_stage1`` (default ``ContactParams.relaxed()``), from the start posture re-seated
-    for that law, with the final problem's horizon, weights, body and foot, and initial ``guess``;
-    ``strength`` scales the body's torque box u_max (the cost keeps the task's weights)."""
+    for that law (``with_law``; none when ``final`` is already posed under it, as
+    ``relaxed_stage_problem`` poses it), with the final problem's horizon, weights, body and foot,
+    and initial ``guess``; ``strength`` scales the body's torque box u_max (the cost keeps the
+    task's weights)."""
     law = ContactParams.relaxed() if contact_stage1 is None else contact_stage1
-    q_start1, _ = reseat_for_contact(final.p, final.p.q_start, final.layout.active, law)
+    q_start1 = with_law(final, law).p.q_start  # ``final`` itself when it is posed under ``law``
     body = final.model
     if strength != 1.0:
         body = dataclasses.replace(body, u_max=strength * np.asarray(body.u_max))
@@ -510,7 +514,7 @@ def solve(
     (default ``FootParams.paper()``) apply to both stages; ``contact`` (default nominal) is the law
     of the dynamic stage, ``contact_stage1`` (default ``ContactParams.relaxed()``) that of the
     pseudo-static stage 1 (a step towards ``contact`` where it cannot seat the start:
-    ``relaxed_stage_law``). ``guess`` is the initial guess of the first stage (``GUESSES``): the
+    ``relaxed_stage_problem``). ``guess`` is the initial guess of the first stage (``GUESSES``): the
     paper's linear one, or ``"inverse_dynamics"`` (default), the same motion with torques and
     forces that satisfy its dynamics (``transcription.inverse_dynamics_guess``). ``handover``
     (``HANDOVERS``) is how 2S passes from stage 1 to stage 2: ``"direct"`` (the paper's) or
@@ -576,17 +580,18 @@ def solve(
     if scheme.stages == 2:
         stage1 = {**STAGE1_DEFAULTS, **(options or {}), **(stage1_options or {})}
         first = stage1_solver or solver
-        law1, law_step = relaxed_stage_law(final, law1, continuation_steps)
-        stats1, Z1 = _stage_one(task, scheme, first, final, N1, stage1, law1, guess, verbose, progress, scaling)
+        relaxed, law_step = relaxed_stage_problem(final, law1, continuation_steps)
+        law1 = relaxed.p.contact
+        stats1, Z1 = _stage_one(task, scheme, first, relaxed, N1, stage1, law1, guess, verbose, progress, scaling)
         stages.append(dataclasses.replace(stats1, law_step=law_step))
         Zf = interpolate_full(Z1, T, final.layout)
         warm = {"t": np.linspace(0.0, T, N + 1), "q": Zf[:, final.layout.stage_slices()["q"]]}
         x0 = np.clip(np.asarray(tr.free_from_full(final.layout, Zf)), final.bounds.xl, final.bounds.xu)
     stage2 = {**(STAGE2_DEFAULTS if scheme.stages == 2 else {}), **(options or {}), **(stage2_options or {})}
     if scheme.stages == 2 and handover == "continuation":
-        laws = law_path(law1, final.p.contact, continuation_steps)
+        path = [relaxed, *(with_law(final, law) for law in law_path(law1, final.p.contact, continuation_steps)[1:])]
         solvers = (stage1_solver or solver, solver)
-        more, x = _continuation_stages(solvers, final, laws, x0, stage2, setup_final, verbose, progress, scaling)
+        more, x = _continuation_stages(solvers, path, x0, stage2, setup_final, verbose, progress, scaling)
         stages.extend(more)
         return make_solution(final, x, stages, solver, warm_start=warm)
     name = "stage 2 (dynamic)" if scheme.stages == 2 else "single stage"
@@ -612,12 +617,12 @@ def _run_path(
     return attempts
 
 
-def _continuation_stages(solvers, final: Problem, laws, x0, options, setup_time_s, verbose, progress, scaling):
-    """The dynamic stages of a continuation hand-over: the first law (stage 1's) by ``solvers[0]``,
-    rerun from the same start with each of ``RELAXED_DYNAMIC_FALLBACKS`` while it fails, then the
-    path to the nominal law by ``solvers[1]``. Returns (stats of both, x); a failed solve ends the
-    path, and its stage reports its status with the law it failed at."""
-    problems = [with_law(final, law) for law in laws]
+def _continuation_stages(solvers, problems: list[Problem], x0, options, setup_time_s, verbose, progress, scaling):
+    """The dynamic stages of a continuation hand-over along ``problems``, the final problem under
+    each law of the path: the first law (stage 1's) by ``solvers[0]``, rerun from the same start
+    with each of ``RELAXED_DYNAMIC_FALLBACKS`` while it fails, then the path to the nominal law by
+    ``solvers[1]``. Returns (stats of both, x); a failed solve ends the path, and its stage reports
+    its status with the law it failed at."""
     stats: list[StageStats] = []
     x = x0
     for solver, part, name, reruns in (
