@@ -7,12 +7,12 @@ BASE and OTHER are sweep folders (``cases.csv``, and each case's ``report.json``
 ``solution.npz`` where the case saved them) of studies whose draws pose the same problems with one
 setting changed (the contact-force limit, the guess, N1): a problem is matched by (task, draw),
 since the changed setting changes the case ids. Only problems and solvers in both studies count
-(``--draws K``: draws < K). Per study: how many problems each solver solved in every stage, on how many all its
-solvers reached the same optimum (``studies.compare.agreement``: objectives within 1e-6 relative,
-joint trajectories within 1e-4 rad), how many of IPOPT's optima keep every contact force at
-most 2 M g (a limit of 2 M g holds to 1e-6 M g), the median iterations of each stage and of all stages and the median objective (IPOPT);
-and, of the problems IPOPT solved in both, on how many OTHER ends lower, at the same objective
-or higher.
+(``--draws K``: draws < K). Per study: how many problems each solver solved in every stage, on
+how many all its solvers reached the same optimum (``studies.compare.agreement``: objectives
+within 1e-6 relative, joint trajectories within 1e-4 rad), how many of IPOPT's optima keep every
+contact force at most 2 M g (to 1e-6 M g: an optimum pinned at a limit of 2 M g meets it), the
+median iterations of each stage and of all stages and the median objective (IPOPT); and, of the
+problems IPOPT solved in both, on how many OTHER ends lower, at the same objective or higher.
 """
 
 from __future__ import annotations

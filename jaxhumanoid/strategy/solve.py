@@ -325,8 +325,7 @@ def relaxed_stage_problem(final: Problem, first: ContactParams, steps: int) -> t
     pressure off the sole under the relaxed law whatever the re-seat does, so stage 1's frozen
     first interval and the relaxed-law dynamic solve are infeasible from every start; a step along
     the path seats it (docs/results.md). A step other than 0 is announced by a warning."""
-    laws = (first, *law_path(first, final.p.contact, steps)[1:])
-
+    laws = law_path(first, final.p.contact, steps)  # laws[0] is ``first`` (first^1 last^0)
     step, problem = steps, final  # the nominal law, where no earlier law seats the start
     for j, law in enumerate(laws[:-1]):
         seated = with_law(final, law)
@@ -576,20 +575,22 @@ def solve(
     setup_final = time.perf_counter() - t0
     stages, warm = [], None
     x0 = final.bounds.x0
-    law1 = ContactParams.relaxed() if contact_stage1 is None else contact_stage1  # the relaxed-law stages'
     if scheme.stages == 2:
         stage1 = {**STAGE1_DEFAULTS, **(options or {}), **(stage1_options or {})}
         first = stage1_solver or solver
-        relaxed, law_step = relaxed_stage_problem(final, law1, continuation_steps)
-        law1 = relaxed.p.contact
-        stats1, Z1 = _stage_one(task, scheme, first, relaxed, N1, stage1, law1, guess, verbose, progress, scaling)
+        law1 = ContactParams.relaxed() if contact_stage1 is None else contact_stage1
+        relaxed, law_step = relaxed_stage_problem(final, law1, continuation_steps)  # its law: law1 or a step on
+        stats1, Z1 = _stage_one(
+            task, scheme, first, relaxed, N1, stage1, relaxed.p.contact, guess, verbose, progress, scaling
+        )
         stages.append(dataclasses.replace(stats1, law_step=law_step))
         Zf = interpolate_full(Z1, T, final.layout)
         warm = {"t": np.linspace(0.0, T, N + 1), "q": Zf[:, final.layout.stage_slices()["q"]]}
         x0 = np.clip(np.asarray(tr.free_from_full(final.layout, Zf)), final.bounds.xl, final.bounds.xu)
     stage2 = {**(STAGE2_DEFAULTS if scheme.stages == 2 else {}), **(options or {}), **(stage2_options or {})}
     if scheme.stages == 2 and handover == "continuation":
-        path = [relaxed, *(with_law(final, law) for law in law_path(law1, final.p.contact, continuation_steps)[1:])]
+        later = law_path(relaxed.p.contact, final.p.contact, continuation_steps)[1:]
+        path = [relaxed, *(with_law(final, law) for law in later)]
         solvers = (stage1_solver or solver, solver)
         more, x = _continuation_stages(solvers, path, x0, stage2, setup_final, verbose, progress, scaling)
         stages.extend(more)
