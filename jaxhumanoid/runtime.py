@@ -1,18 +1,33 @@
-"""Runtime set-up shared by every layer: float64 in JAX, the persistent compilation cache, and the
-checked reading of TOML inputs and making of output folders (errors that name the field).
+"""Runtime set-up shared by every layer: float64 in JAX, the same BLAS kernels on every x86-64 CPU,
+the persistent compilation cache, and the checked reading of TOML inputs and making of output
+folders (errors that name the field).
 
 Importing this module turns on ``jax_enable_x64``: every model, transcription and solver function
 works in double precision. It is the only module that writes JAX's configuration.
+
+It also sets ``OPENBLAS_CORETYPE=Haswell`` (unless set) on x86-64 before numpy loads. The OpenBLAS
+builds that numpy, scipy (and through it JAX's LAPACK calls) and IPOPT's MUMPS load pick their
+kernels by CPU (SkylakeX on AVX-512, Haswell or Zen on AVX2), and the kernels round differently.
+These NLPs are chaotic: a start posture seated by a least-squares step one ulp away can end at
+another optimum. Haswell's kernels (AVX2 and FMA) run on every x86-64 CPU since 2013, so a solve
+gives the same bits on each; they cost no measurable time here (docs/results.md). A program that
+loads numpy before this module keeps the CPU's own kernels: set the variable before Python starts
+for bit-for-bit results there (the command line, the studies' workers and the tests have it).
 """
 
 from __future__ import annotations
 
 import os
 import pathlib
+import platform
 import tempfile
 import tomllib
 
-import jax
+BLAS_CORETYPE = "Haswell"
+if platform.machine().lower() in ("x86_64", "amd64"):
+    os.environ.setdefault("OPENBLAS_CORETYPE", BLAS_CORETYPE)
+
+import jax  # noqa: E402  (after the BLAS kernels are chosen: jax loads numpy)
 
 jax.config.update("jax_enable_x64", True)
 

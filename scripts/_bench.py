@@ -3,6 +3,9 @@ the benchmarks' tasks."""
 
 from __future__ import annotations
 
+import jaxhumanoid.runtime  # noqa: F401  (first: it pins the BLAS kernels before numpy loads)
+
+# isort: split
 import json
 import pathlib
 import platform

@@ -9,6 +9,9 @@ and the whole A,F+C,2S solve of each task with IPOPT in both pipelines.
 
 from __future__ import annotations
 
+import jaxhumanoid.runtime  # noqa: F401  (first: it pins the BLAS kernels before numpy loads)
+
+# isort: split
 import argparse
 import time
 

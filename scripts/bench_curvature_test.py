@@ -19,6 +19,9 @@ median ratios (curvature / inertia, same NLP) and on how many NLPs both reach th
 
 from __future__ import annotations
 
+import jaxhumanoid.runtime  # noqa: F401  (first: it pins the BLAS kernels before numpy loads)
+
+# isort: split
 import argparse
 
 from _bench import write

@@ -17,6 +17,9 @@ NLPs both reach the same optimum (objectives within 1e-6 relative). Set OMP_NUM_
 
 from __future__ import annotations
 
+import jaxhumanoid.runtime  # noqa: F401  (first: it pins the BLAS kernels before numpy loads)
+
+# isort: split
 import argparse
 import json
 import pathlib

@@ -24,6 +24,9 @@ Set OMP_NUM_THREADS=1 when comparing with other runs.
 
 from __future__ import annotations
 
+import jaxhumanoid.runtime  # noqa: F401  (first: it pins the BLAS kernels before numpy loads)
+
+# isort: split
 import argparse
 import dataclasses
 import json

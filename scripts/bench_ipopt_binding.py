@@ -12,6 +12,9 @@ JAX functions separately; ours fuses f+g and grad+J and copies with memcpy.
 
 from __future__ import annotations
 
+import jaxhumanoid.runtime  # noqa: F401  (first: it pins the BLAS kernels before numpy loads)
+
+# isort: split
 import argparse
 
 import numpy as np

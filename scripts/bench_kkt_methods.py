@@ -23,6 +23,9 @@ Writes JSON (``--out``) and prints the tables.
 
 from __future__ import annotations
 
+import jaxhumanoid.runtime  # noqa: F401  (first: it pins the BLAS kernels before numpy loads)
+
+# isort: split
 import argparse
 import os
 import time

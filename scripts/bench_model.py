@@ -5,6 +5,9 @@ python scripts/bench_model.py [--stages 100] [--out results/bench_model.json]
 
 from __future__ import annotations
 
+import jaxhumanoid.runtime  # noqa: F401  (first: it pins the BLAS kernels before numpy loads)
+
+# isort: split
 import argparse
 
 import jax

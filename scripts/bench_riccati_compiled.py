@@ -30,6 +30,9 @@ headers are missing (the compiler: $CXX, else g++). Writes JSON (``--out``) and 
 
 from __future__ import annotations
 
+import jaxhumanoid.runtime  # noqa: F401  (first: it pins the BLAS kernels before numpy loads)
+
+# isort: split
 import argparse
 import ctypes
 import os

@@ -25,6 +25,9 @@ refined solve) on T1's real stage-2 KKT matrix near IPOPT's 30th iterate (``benc
 
 from __future__ import annotations
 
+import jaxhumanoid.runtime  # noqa: F401  (first: it pins the BLAS kernels before numpy loads)
+
+# isort: split
 import argparse
 
 import jax

@@ -11,6 +11,9 @@ BLAS threading when comparing iteration counts across machines.
 
 from __future__ import annotations
 
+import jaxhumanoid.runtime  # noqa: F401  (first: it pins the BLAS kernels before numpy loads)
+
+# isort: split
 import argparse
 import os
 import re

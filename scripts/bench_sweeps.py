@@ -8,6 +8,9 @@ joint sweeps to round-off in fewer operations (``scripts/bench_derivatives.py`` 
 Round-off moves the solvers' paths, so what a solve gains is measured here over perturbed NLPs:
 ``bench_first_trial.py``'s (per task, draw 0 as posed and draws 1.. with the four cost terms
 scaled log-uniformly in [0.5, 2]; stage 1 of 2S from the initial guess and the dynamic stage 2
+import jaxhumanoid.runtime  # noqa: F401  (first: it pins the BLAS kernels before numpy loads)
+
+# isort: split
 from IPOPT's stage-1 solution). Each NLP is solved by IPOPT and by the IPM with each sweep, one
 after the other, the sweep that goes first alternating from draw to draw (IPOPT after a
 two-iteration warm-up; the IPM's solve time excludes compilation): status, iterations, solve

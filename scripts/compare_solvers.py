@@ -15,6 +15,9 @@ Run it with and without ``OMP_NUM_THREADS=1``: the environment is recorded with 
 
 from __future__ import annotations
 
+import jaxhumanoid.runtime  # noqa: F401  (first: it pins the BLAS kernels before numpy loads)
+
+# isort: split
 import argparse
 import json
 import os

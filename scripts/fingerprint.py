@@ -12,6 +12,9 @@ by more than 1e-12 relative. Run with ``OMP_NUM_THREADS=1``.
 
 from __future__ import annotations
 
+import jaxhumanoid.runtime  # noqa: F401  (first: it pins the BLAS kernels before numpy loads)
+
+# isort: split
 import argparse
 import hashlib
 import json

@@ -36,6 +36,9 @@ Ruiz-equilibrated system, as ``bench_kkt.py`` measures it), and the flops per in
 
 from __future__ import annotations
 
+import jaxhumanoid.runtime  # noqa: F401  (first: it pins the BLAS kernels before numpy loads)
+
+# isort: split
 import argparse
 
 import jax.numpy as jnp

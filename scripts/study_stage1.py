@@ -15,6 +15,9 @@ runs reach, how many fail, and which optima more than one solver reaches.
 
 from __future__ import annotations
 
+import jaxhumanoid.runtime  # noqa: F401  (first: it pins the BLAS kernels before numpy loads)
+
+# isort: split
 import argparse
 import json
 import pathlib

@@ -39,6 +39,9 @@ default's all-runs iterations is the study's "iterations of stage 1".
 
 from __future__ import annotations
 
+import jaxhumanoid.runtime  # noqa: F401  (first: it pins the BLAS kernels before numpy loads)
+
+# isort: split
 import argparse
 import concurrent.futures as cf
 import dataclasses

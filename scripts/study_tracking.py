@@ -26,6 +26,9 @@ which uncertainty the plan and the controller do not survive.
 
 from __future__ import annotations
 
+import jaxhumanoid.runtime  # noqa: F401  (first: it pins the BLAS kernels before numpy loads)
+
+# isort: split
 import argparse
 import collections
 import dataclasses

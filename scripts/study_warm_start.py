@@ -10,6 +10,9 @@ writes JSON.
 
 from __future__ import annotations
 
+import jaxhumanoid.runtime  # noqa: F401  (first: it pins the BLAS kernels before numpy loads)
+
+# isort: split
 import argparse
 
 import jax

@@ -6,14 +6,19 @@ or ``~/.cache/jaxhumanoid/jax``), so a rerun reads what the last run compiled; t
 and the sweep workers turn on the same folder. Each module compiles its own NLPs, IPM cores and
 derivative programs; one process running the whole suite would otherwise keep every executable
 alive until it exits (several GiB by the middle of the suite).
+
+``jaxhumanoid.runtime`` is imported before anything loads numpy, so that the tests run on the BLAS
+kernels it pins (its docstring).
 """
 
 import gc
 
+from jaxhumanoid.runtime import enable_compilation_cache
+
+# isort: split
 import jax
 import pytest
 
-from jaxhumanoid.runtime import enable_compilation_cache
 from jaxhumanoid.strategy import problem
 
 enable_compilation_cache()

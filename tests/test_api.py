@@ -1,7 +1,11 @@
 """The public API as a user meets it: own bodies and tasks, task files, clear errors."""
 
 import dataclasses
+import os
 import pathlib
+import platform
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -184,3 +188,37 @@ def test_the_continuation_brings_ipopt_and_the_ipm_to_one_optimum_on_t3():
     assert [st.attempts for st in sols["ipm"].stages][1:] == [1, 4]
     assert abs(sols["ipm"].objective - sols["ipopt"].objective) <= 1e-6 * sols["ipopt"].objective
     assert np.abs(sols["ipm"].q - sols["ipopt"].q).max() <= 1e-4
+
+
+KERNEL_PROBE = """
+import ctypes, pathlib, sys
+import jaxhumanoid, numpy
+names = ("scipy_openblas_get_corename64_", "scipy_openblas_get_corename", "openblas_get_corename")
+for lib in sorted((pathlib.Path(numpy.__file__).parent.parent / "numpy.libs").glob("*openblas*.so*")):
+    for name in names:
+        fn = getattr(ctypes.CDLL(str(lib)), name, None)
+        if fn is not None:
+            fn.restype = ctypes.c_char_p
+            print(fn().decode())
+            sys.exit()
+print("unknown")
+"""
+
+
+def blas_kernels(coretype: str | None) -> str:
+    """The OpenBLAS kernels numpy runs on in a fresh process that imports jaxhumanoid first, with
+    ``OPENBLAS_CORETYPE`` unset (None) or set to ``coretype``."""
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_CORETYPE"}
+    if coretype is not None:
+        env["OPENBLAS_CORETYPE"] = coretype
+    out = subprocess.run([sys.executable, "-c", KERNEL_PROBE], env=env, capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    return out.stdout.strip()
+
+
+@pytest.mark.skipif(platform.machine().lower() not in ("x86_64", "amd64"), reason="OpenBLAS kernels of x86-64")
+def test_importing_jaxhumanoid_first_pins_the_blas_kernels_and_a_set_choice_is_kept():
+    if blas_kernels(None) == "unknown":
+        pytest.skip("numpy is not linked to a bundled OpenBLAS")
+    assert blas_kernels(None) == "Haswell"
+    assert blas_kernels("Sandybridge") == "Sandybridge"  # the probe reads the kernels in use
