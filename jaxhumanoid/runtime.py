@@ -5,14 +5,15 @@ folders (errors that name the field).
 Importing this module turns on ``jax_enable_x64``: every model, transcription and solver function
 works in double precision. It is the only module that writes JAX's configuration.
 
-It also sets ``OPENBLAS_CORETYPE=Haswell`` (unless set) on x86-64 before numpy loads. The OpenBLAS
-builds that numpy, scipy (and through it JAX's LAPACK calls) and IPOPT's MUMPS load pick their
-kernels by CPU (SkylakeX on AVX-512, Haswell or Zen on AVX2), and the kernels round differently.
-These NLPs are chaotic: a start posture seated by a least-squares step one ulp away can end at
-another optimum. Haswell's kernels (AVX2 and FMA) run on every x86-64 CPU since 2013, so a solve
-gives the same bits on each; they cost no measurable time here (docs/results.md). A program that
-loads numpy before this module keeps the CPU's own kernels: set the variable before Python starts
-for bit-for-bit results there (the command line, the studies' workers and the tests have it).
+It also sets ``OPENBLAS_CORETYPE=Haswell`` (unless set) before numpy loads, on x86-64 Linux CPUs
+with AVX2 and FMA. The OpenBLAS builds that numpy, scipy (and through it JAX's LAPACK calls) and
+IPOPT's MUMPS load pick their kernels by CPU (SkylakeX on AVX-512, Haswell or Zen on AVX2), and the
+kernels round differently. These NLPs are chaotic: a start posture seated by a least-squares step
+one ulp away can end at another optimum. With Haswell's kernels a solve gives the same bits on
+every such CPU. OpenBLAS runs a forced core type without checking the CPU's instructions, so a
+CPU without AVX2 and FMA (or whose flags cannot be read) keeps its own kernels. A program that
+loads numpy before this module keeps the CPU's own kernels too: set the variable before Python
+starts for bit-for-bit results there (the command line, the studies' workers and the tests have it).
 """
 
 from __future__ import annotations
@@ -24,7 +25,21 @@ import tempfile
 import tomllib
 
 BLAS_CORETYPE = "Haswell"
-if platform.machine().lower() in ("x86_64", "amd64"):
+
+
+def runs_blas_coretype() -> bool:
+    """Whether this CPU has the instructions of ``BLAS_CORETYPE``'s kernels (x86-64 with AVX2 and
+    FMA, read from /proc/cpuinfo): OpenBLAS would run a forced core type's kernels without them."""
+    if platform.machine().lower() not in ("x86_64", "amd64"):
+        return False
+    try:
+        flags = set(pathlib.Path("/proc/cpuinfo").read_text().split())
+    except OSError:
+        return False
+    return {"avx2", "fma"} <= flags
+
+
+if runs_blas_coretype():
     os.environ.setdefault("OPENBLAS_CORETYPE", BLAS_CORETYPE)
 
 import jax  # noqa: E402  (after the BLAS kernels are chosen: jax loads numpy)

@@ -3,7 +3,6 @@
 import dataclasses
 import os
 import pathlib
-import platform
 import subprocess
 import sys
 
@@ -14,6 +13,7 @@ import jaxhumanoid as jh
 from jaxhumanoid.model.params import DEG, HUMANOID_RANGES, HUMANOID_STRENGTH, TORQUE_LIMIT
 from jaxhumanoid.ocp.tasks import effort_weights
 from jaxhumanoid.outputs.cli import build_parser, main, solve_arguments
+from jaxhumanoid.runtime import runs_blas_coretype
 from jaxhumanoid.strategy.posture import margins
 
 EXAMPLES = pathlib.Path(__file__).resolve().parents[1] / "examples"
@@ -216,7 +216,7 @@ def blas_kernels(coretype: str | None) -> str:
     return out.stdout.strip()
 
 
-@pytest.mark.skipif(platform.machine().lower() not in ("x86_64", "amd64"), reason="OpenBLAS kernels of x86-64")
+@pytest.mark.skipif(not runs_blas_coretype(), reason="a CPU without the pinned kernels' instructions")
 def test_importing_jaxhumanoid_first_pins_the_blas_kernels_and_a_set_choice_is_kept():
     if blas_kernels(None) == "unknown":
         pytest.skip("numpy is not linked to a bundled OpenBLAS")
