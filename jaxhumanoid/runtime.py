@@ -1,6 +1,6 @@
-"""Runtime set-up shared by every layer: float64 in JAX, the same BLAS kernels on every x86-64 CPU,
-the persistent compilation cache, and the checked reading of TOML inputs and making of output
-folders (errors that name the field).
+"""Runtime set-up shared by every layer: float64 in JAX, the same BLAS kernels on every x86-64 CPU
+with AVX2, the persistent compilation cache, and the checked reading of TOML inputs and making of
+output folders (errors that name the field).
 
 Importing this module turns on ``jax_enable_x64``: every model, transcription and solver function
 works in double precision. It is the only module that writes JAX's configuration.
@@ -39,8 +39,8 @@ def runs_blas_coretype() -> bool:
     return {"avx2", "fma"} <= flags
 
 
-if runs_blas_coretype():
-    os.environ.setdefault("OPENBLAS_CORETYPE", BLAS_CORETYPE)
+if "OPENBLAS_CORETYPE" not in os.environ and runs_blas_coretype():  # a set choice (a worker's) stays
+    os.environ["OPENBLAS_CORETYPE"] = BLAS_CORETYPE
 
 import jax  # noqa: E402  (after the BLAS kernels are chosen: jax loads numpy)
 

@@ -17,9 +17,6 @@ problems IPOPT solved in both, on how many OTHER ends lower, at the same objecti
 
 from __future__ import annotations
 
-import jaxhumanoid.runtime  # noqa: F401  (first: it pins the BLAS kernels before numpy loads)
-
-# isort: split
 import argparse
 import json
 import pathlib

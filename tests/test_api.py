@@ -218,7 +218,8 @@ def blas_kernels(coretype: str | None) -> str:
 
 @pytest.mark.skipif(not runs_blas_coretype(), reason="a CPU without the pinned kernels' instructions")
 def test_importing_jaxhumanoid_first_pins_the_blas_kernels_and_a_set_choice_is_kept():
-    if blas_kernels(None) == "unknown":
+    pinned = blas_kernels(None)
+    if pinned == "unknown":
         pytest.skip("numpy is not linked to a bundled OpenBLAS")
-    assert blas_kernels(None) == "Haswell"
+    assert pinned == "Haswell"
     assert blas_kernels("Sandybridge") == "Sandybridge"  # the probe reads the kernels in use
