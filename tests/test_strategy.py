@@ -189,16 +189,38 @@ def test_continuation_hands_over_along_the_law_path_and_stops_at_a_failure(monke
     assert [s.runs for s in sol.stages] == [(11,), (12,), (13, 14, 15)] and sol.success
     assert sol.stages[2].iterations == 13 + 14 + 15 and sol.stages[2].attempts == 3
     calls.clear()
-    fail_at = 4  # the second law of stage 2
+    fail_at = 4  # the second law of stage 2, once: rerun from the same start with the cold barrier
     sol = strat.solve("T1", "A,F+C,2S", solver=solver, **kw)
-    assert len(calls) == 4 and not sol.success
-    assert sol.stages[2].status == "Restoration_Failed (law 2/3)" and sol.stages[2].runs == (13, 14)
+    assert len(calls) == 6 and sol.success and sol.stages[2].runs == (13, 14, 15, 16)
+    assert calls[4][2] == calls[3][2] and calls[4][3]["mu_init"] == strat.DYNAMIC_FALLBACKS[0]["mu_init"]
+    assert calls[5][3]["mu_init"] == strat.CONTINUATION_OPTIONS["mu_init"]  # the next law: the small barrier again
+
+
+@pytest.mark.parametrize("solver", ["ipopt", "ipm"])
+def test_a_law_of_the_continuation_that_no_rerun_solves_ends_the_path_with_its_law(monkeypatch, solver):
+    calls = []
+    laws = strat.law_path(strat.ContactParams.relaxed(), strat.ContactParams.nominal(), 3)
+
+    def fake_run(used, problem, x0, options, verbose, progress=None, scaling="none"):
+        calls.append((np.asarray(x0).copy(), dict(options)))
+        fail = float(problem.p.contact.kappa) == float(laws[2].kappa)  # the second law of stage 2
+        return _fake_result(problem, x0 + 1.0, "Restoration_Failed" if fail else "Solve_Succeeded", 10 + len(calls))
+
+    monkeypatch.setattr(strat, "_run_solver", fake_run)
+    kw = dict(N=10, N1=5, handover="continuation", continuation_steps=3)
+    sol = strat.solve("T1", "A,F+C,2S", solver=solver, **kw)
+    reruns = len(strat.DYNAMIC_FALLBACKS)
+    assert len(calls) == 4 + reruns and not sol.success
+    assert sol.stages[2].status == "Restoration_Failed (law 2/3)" and sol.stages[2].runs == (13, 14, 15, 16)
+    for k, rerun in enumerate(strat.DYNAMIC_FALLBACKS, start=4):
+        np.testing.assert_array_equal(calls[k][0], calls[3][0])  # every rerun starts where the law's first run did
+        assert {key: calls[k][1].get(key) for key in rerun} == rerun
 
 
 @pytest.mark.parametrize("fails", [1, 2, 3])
 def test_failed_relaxed_law_dynamic_solve_reruns_from_the_same_start_with_a_cold_barrier(monkeypatch, fails):
     """The relaxed-law dynamic solve that fails is rerun from stage 1's solution with each of
-    ``RELAXED_DYNAMIC_FALLBACKS`` in turn (IPOPT's cold barrier, then with the adaptive update)
+    ``DYNAMIC_FALLBACKS`` in turn (IPOPT's cold barrier, then with the adaptive update)
     until one succeeds; the continuation goes on after a success, and the stage fails with the last
     rerun's status when none does."""
     calls = []
@@ -215,7 +237,7 @@ def test_failed_relaxed_law_dynamic_solve_reruns_from_the_same_start_with_a_cold
     relaxed, runs = sol.stages[1], min(fails + 1, 3)
     assert relaxed.runs == (10,) * runs and relaxed.attempts == runs
     assert calls[1][2]["mu_init"] == strat.STAGE2_DEFAULTS["mu_init"]
-    for k, rerun in enumerate(strat.RELAXED_DYNAMIC_FALLBACKS[: runs - 1], start=2):
+    for k, rerun in enumerate(strat.DYNAMIC_FALLBACKS[: runs - 1], start=2):
         np.testing.assert_array_equal(calls[k][1], calls[1][1])  # every rerun starts where the first run did
         assert {key: calls[k][2].get(key) for key in rerun} == rerun
     assert calls[2][2].get("mu_strategy") != "adaptive"  # the cold monotone rerun comes first
