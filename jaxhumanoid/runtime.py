@@ -18,9 +18,12 @@ starts for bit-for-bit results there (the command line, the studies' workers and
 
 from __future__ import annotations
 
+import ctypes
+import importlib.metadata
 import os
 import pathlib
 import platform
+import sys
 import tempfile
 import tomllib
 
@@ -45,6 +48,57 @@ if "OPENBLAS_CORETYPE" not in os.environ and runs_blas_coretype():  # a set choi
 import jax  # noqa: E402  (after the BLAS kernels are chosen: jax loads numpy)
 
 jax.config.update("jax_enable_x64", True)
+
+_CORENAME = ("scipy_openblas_get_corename64_", "scipy_openblas_get_corename", "openblas_get_corename")
+_PACKAGES = ("jax", "jaxlib", "numpy", "scipy", "cyipopt-wheels", "casadi")
+
+
+def blas_kernels() -> dict[str, str]:
+    """The kernels (OpenBLAS's core name, e.g. ``Haswell``) of every OpenBLAS this process has
+    loaded, keyed by the folder it was loaded from (``numpy.libs``, ``scipy.libs``,
+    ``cyipopt_wheels.libs``); empty where the loaded libraries cannot be listed (not Linux)."""
+    try:
+        maps = pathlib.Path("/proc/self/maps").read_text()
+    except OSError:
+        return {}
+    paths = {f[5] for f in (line.split(maxsplit=5) for line in maps.splitlines()) if len(f) == 6}
+    kernels = {}
+    for path in sorted(p for p in paths if "openblas" in pathlib.Path(p).name.lower()):
+        lib = ctypes.CDLL(path)  # already loaded: the same handle, nothing new runs
+        fn = next((getattr(lib, name) for name in _CORENAME if hasattr(lib, name)), None)
+        if fn is not None:
+            fn.restype = ctypes.c_char_p
+            kernels[pathlib.Path(path).parent.name] = fn().decode()
+    return kernels
+
+
+def environment() -> dict:
+    """What a result's bits depend on besides its inputs: the package versions, the CPU, the BLAS
+    kernels in use and the thread settings (``report.json``'s ``environment``)."""
+    versions: dict[str, str | None] = {}
+    for name in _PACKAGES:
+        try:
+            versions[name] = importlib.metadata.version(name)
+        except importlib.metadata.PackageNotFoundError:
+            versions[name] = None
+    return {
+        "python": platform.python_version(),
+        "packages": versions,
+        "machine": platform.machine(),
+        "cpu": _cpu_model(),
+        "blas_kernels": blas_kernels(),
+        "OPENBLAS_CORETYPE": os.environ.get("OPENBLAS_CORETYPE"),
+        "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS"),
+        "platform": sys.platform,
+    }
+
+
+def _cpu_model() -> str:
+    try:
+        lines = pathlib.Path("/proc/cpuinfo").read_text().splitlines()
+    except OSError:
+        return platform.processor()
+    return next((line.split(":", 1)[1].strip() for line in lines if line.startswith("model name")), "")
 
 
 def enable_compilation_cache(path: str | None = None) -> str:

@@ -191,17 +191,8 @@ def test_the_continuation_brings_ipopt_and_the_ipm_to_one_optimum_on_t3():
 
 
 KERNEL_PROBE = """
-import ctypes, pathlib, sys
-import jaxhumanoid, numpy
-names = ("scipy_openblas_get_corename64_", "scipy_openblas_get_corename", "openblas_get_corename")
-for lib in sorted((pathlib.Path(numpy.__file__).parent.parent / "numpy.libs").glob("*openblas*.so*")):
-    for name in names:
-        fn = getattr(ctypes.CDLL(str(lib)), name, None)
-        if fn is not None:
-            fn.restype = ctypes.c_char_p
-            print(fn().decode())
-            sys.exit()
-print("unknown")
+import jaxhumanoid.runtime, numpy
+print(jaxhumanoid.runtime.blas_kernels().get("numpy.libs", "unknown"))
 """
 
 

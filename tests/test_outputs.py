@@ -9,12 +9,16 @@ the weight. No JAX is needed and nothing is solved, so the whole file runs in se
 from __future__ import annotations
 
 import json
+import platform
+import sys
 
+import jax
 import numpy as np
 import pytest
 from PIL import Image
 
 from jaxhumanoid.outputs import animation, plots, timeline
+from jaxhumanoid.runtime import BLAS_CORETYPE, runs_blas_coretype
 from jaxhumanoid.strategy.solution import Solution, StageStats
 
 A = np.array([0.473, 0.422, 0.532, 0.282, 0.355])
@@ -196,6 +200,18 @@ def test_plot_after_save_and_load(tmp_path):
     loaded = Solution.load(tmp_path)
     assert loaded.warm_start is not None
     _png_ok(plots.save_png(plots.plot_solution(loaded, n_frames=4), tmp_path / "loaded.png"))
+
+
+def test_report_records_the_environment_the_bits_depend_on(tmp_path):
+    make_solution(n=12).save(tmp_path)
+    env = json.loads((tmp_path / "report.json").read_text())["environment"]
+    assert env["packages"]["numpy"] == np.__version__ and env["packages"]["jax"] == jax.__version__
+    assert env["python"] == platform.python_version()
+    kernels = env["blas_kernels"]
+    if sys.platform == "linux":
+        assert "numpy.libs" in kernels, kernels  # numpy's bundled OpenBLAS, read in this process
+        if runs_blas_coretype():
+            assert kernels["numpy.libs"] == BLAS_CORETYPE == env["OPENBLAS_CORETYPE"]
 
 
 # --- contact timeline ---------------------------------------------------------------------

@@ -29,6 +29,8 @@ from typing import Any
 
 import numpy as np
 
+from jaxhumanoid.runtime import environment
+
 ARRAY_FIELDS = ("t", "q", "qd", "u", "f_contact", "gaps", "foot_reaction", "foot_margins")
 
 
@@ -135,6 +137,7 @@ class Solution:
         np.savez(out / "solution.npz", **arrays)  # type: ignore[arg-type]  # numpy stubs type **kwds as bool
         meta = self.report()
         meta["geometry"] = {k: np.asarray(v).tolist() for k, v in self.geometry.items()}
+        meta["environment"] = environment()  # these NLPs are chaotic: what the bits depend on
         (out / "report.json").write_text(json.dumps(meta, indent=2) + "\n")
         return out
 
