@@ -51,6 +51,20 @@ def test_hs071_multipliers_match_ipopt_convention():
     np.testing.assert_allclose(grad + J.T @ r.lam_g - r.z_l + r.z_u, 0.0, atol=1e-6)
 
 
+def test_a_warm_start_push_reaches_the_slacks_as_in_ipopt():
+    """IPOPT pushes the inequality slacks by bound_push and bound_frac unless slack_bound_push and
+    slack_bound_frac are given. HS071's start sits on its inequality's bound (g1 = 25), so the
+    slack push decides the first step: with a warm start's small push the IPM's first iterate is
+    IPOPT's, and with the slacks pushed by the old fixed 1e-2 it is not."""
+    nlp, bounds, p, _ = tp.hs071()
+    warm = {"mu_init": 1e-5, "bound_push": 1e-6, "bound_frac": 1e-6, "max_iter": 1}
+    ref = solve_ipopt(nlp, p, bounds, options=warm).x
+    assert IPMOptions(bound_push=1e-6).slack_bound_frac == 1e-2 and IPMOptions(bound_push=1e-6).slack_bound_push == 1e-6
+    np.testing.assert_allclose(solve_ipm(nlp, p, bounds, options=warm).x, ref, rtol=1e-9, atol=1e-12)
+    fixed = solve_ipm(nlp, p, bounds, options={**warm, "slack_bound_push": 1e-2, "slack_bound_frac": 1e-2}).x
+    assert np.abs(fixed - ref).max() > 1e-5  # 1e4 times the agreement above
+
+
 @pytest.mark.parametrize(
     "x0,status", [((-2.0, 1.0, 1.0), "Infeasible_Problem_Detected"), ((-1.0, 3.0, 0.5), "Solve_Succeeded")]
 )

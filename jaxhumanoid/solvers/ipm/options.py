@@ -58,11 +58,13 @@ class IPMOptions:
     filter_max_margin: float = 1.0
     # variable and inequality bounds relaxed by this factor (IPOPT's default)
     bound_relax_factor: float = 1e-8
-    # initial point (Sec. 3.6)
+    # initial point (Sec. 3.6). The slacks' push and fraction take bound_push's and bound_frac's
+    # values unless given (NaN: not given), as in IPOPT, so that a warm start's small push reaches
+    # the inequality rows too
     bound_push: float = 1e-2
     bound_frac: float = 1e-2
-    slack_bound_push: float = 1e-2
-    slack_bound_frac: float = 1e-2
+    slack_bound_push: float = math.nan
+    slack_bound_frac: float = math.nan
     bound_mult_init_val: float = 1.0
     constr_mult_init_max: float = 1e3
     # gradient-based scaling (Sec. 3.8)
@@ -130,6 +132,9 @@ class IPMOptions:
         # JAX rebuilds the options from traced leaves inside jit and vmap; those were validated
         # as the concrete numbers they came from
         if all(isinstance(getattr(self, name), numbers.Real) for name in FLOAT_FIELDS):
+            for slack, bound in (("slack_bound_push", "bound_push"), ("slack_bound_frac", "bound_frac")):
+                if math.isnan(getattr(self, slack)):
+                    object.__setattr__(self, slack, getattr(self, bound))
             validate(self)
 
     def replace(self, **kw: Any) -> IPMOptions:
