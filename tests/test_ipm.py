@@ -65,6 +65,18 @@ def test_a_warm_start_push_reaches_the_slacks_as_in_ipopt():
     assert np.abs(fixed - ref).max() > 1e-5  # 1e4 times the agreement above
 
 
+def test_one_sided_bounds_are_damped_with_ipopt_s_kappa_d():
+    """IPOPT 3.14 damps one-sided bounds with kappa_d = 1e-5 (the paper's Sec. 3.7 has 1e-4).
+    HS001's x2 has only a lower bound: with IPOPT's value the IPM ends at IPOPT's point to
+    rounding, in as many iterations, and with the paper's it lands 1e-10 away."""
+    nlp, bounds, p, _ = tp.hs001()
+    ref = solve_ipopt(nlp, p, bounds)
+    r = solve_ipm(nlp, p, bounds)
+    assert r.iterations == ref.iterations and np.abs(r.x - ref.x).max() <= 1e-13
+    paper = solve_ipm(nlp, p, bounds, options={"kappa_d": 1e-4})
+    assert np.abs(paper.x - ref.x).max() > 1e-11
+
+
 @pytest.mark.parametrize(
     "x0,status", [((-2.0, 1.0, 1.0), "Infeasible_Problem_Detected"), ((-1.0, 3.0, 0.5), "Solve_Succeeded")]
 )

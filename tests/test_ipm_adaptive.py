@@ -48,7 +48,7 @@ def one_dim():
 def quality_1d(sigma, tau=0.99):
     """q(sigma) at x = 1, z = 1 by hand: W + Sigma = 3, d_aff: dx = 2/3, dz = -1 - dx; d_cen:
     dx = (1 - kappa_d)/3, dz = 1 - dx; grad L = -3; a_pr = 1 (dx > 0)."""
-    dx_c = (1.0 - 1e-4) / 3.0
+    dx_c = (1.0 - make_options(None).kappa_d) / 3.0
     dx = 2.0 / 3.0 + sigma * dx_c
     dz = -5.0 / 3.0 + sigma * (1.0 - dx_c)
     a_du = min(1.0, tau / -dz) if dz < 0 else 1.0

@@ -3,6 +3,8 @@
     phi_mu(x, s) = f(x) - mu sum ln(x - xl) - mu sum ln(xu - x) - mu sum ln(s - gl) - mu sum ln(gu - s)
                    + kappa_d mu (distance to the bound of one-sided variables and slacks, Sec. 3.7)
 
+with IPOPT 3.14's kappa_d (option ``kappa_d``, 1e-5; the paper's is 1e-4).
+
 mu decreases by mu+ = max(mu_min, min(kappa_mu mu, mu^theta_mu)) whenever the barrier problem's
 optimality error E_mu (5) is below kappa_eps mu, down to IPOPT's floor
 mu_min = min(tol, compl_inf_tol) / (kappa_eps + 1).
@@ -19,11 +21,10 @@ from jaxhumanoid.solvers.ipm.options import IPMOptions
 from jaxhumanoid.solvers.ipm.problem import slacks
 from jaxhumanoid.solvers.ipm.state import Prob
 
-KAPPA_D = 1e-4  # linear damping of one-sided bounds (Sec. 3.7)
 MAX_MU_UPDATES = 20  # barrier updates in one iteration at most
 
 
-def barrier_phi(P: Prob, f, x, s, mu):
+def barrier_phi(P: Prob, f, x, s, mu, kappa_d):
     """phi_mu of (3) plus the one-sided linear damping (Sec. 3.7), a scalar."""
     dxl, dxu, dsl, dsu = slacks(P, x, s)
     logs = (
@@ -38,13 +39,13 @@ def barrier_phi(P: Prob, f, x, s, mu):
         + jnp.sum(jnp.where(P.hsl & ~P.hsu, dsl, 0.0))
         + jnp.sum(jnp.where(P.hsu & ~P.hsl, dsu, 0.0))
     )
-    return f - mu * logs + KAPPA_D * mu * damp
+    return f - mu * logs + kappa_d * mu * damp
 
 
-def barrier_grad(P: Prob, grad, x, s, mu):
+def barrier_grad(P: Prob, grad, x, s, mu, kappa_d):
     """(grad_x phi_mu (n,), grad_s phi_mu (m,)) given grad f."""
     dxl, dxu, dsl, dsu = slacks(P, x, s)
-    kd = KAPPA_D * mu
+    kd = kappa_d * mu
     gx = (
         grad
         - jnp.where(P.hxl, mu / dxl, 0.0)

@@ -61,7 +61,7 @@ def residuals(ctx: Context, P: Prob, S: State, mu):
     (gx (n,), gs, gp, gn (m,)), r_x = gx + J^T y, r_s, r_p, r_n and the constraint residual c."""
     it, ev, R = S.it, S.ev, S.rs
     rr = R.on & ~P.free
-    gx, gs = barrier_grad(P, objective_grad(ctx.o, R, ev.grad, it.x, mu), it.x, it.s, mu)
+    gx, gs = barrier_grad(P, objective_grad(ctx.o, R, ev.grad, it.x, mu), it.x, it.s, mu, ctx.o.kappa_d)
     gp, gn = pn_barrier_grad(ctx.o, R, rr, mu)
     rx = gx + jt_mult(ctx, ev.jac, it.y)
     rs = jnp.where(P.hsl | P.hsu, gs - it.y, 0.0)

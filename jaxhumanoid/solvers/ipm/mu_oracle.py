@@ -252,7 +252,7 @@ def oracle_direction(ctx: Context, P: Prob, S: State, ic: Inertia, tau):
     zm = jnp.zeros(ctx.m)
     _, _, _, _, rx0, rs0, _, _, c = residuals(ctx, P, S, 0.0)
     *aff, ratio_a = solve_reduced(ctx, P, ic.A, ic.B, ic.fac, ic.invs, rx0, rs0, zm, zm, c)
-    gx_c, gs_c = barrier_grad(P, jnp.zeros(ctx.n), it.x, it.s, avg)
+    gx_c, gs_c = barrier_grad(P, jnp.zeros(ctx.n), it.x, it.s, avg, ctx.o.kappa_d)
     rs_c = jnp.where(P.hsl | P.hsu, gs_c, 0.0)
     *cen, ratio_c = solve_reduced(ctx, P, ic.A, ic.B, ic.fac, ic.invs, gx_c, rs_c, zm, zm, zm)
     d_aff, d_cen = Direction(*aff), Direction(*cen)

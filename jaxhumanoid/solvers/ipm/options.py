@@ -72,6 +72,8 @@ class IPMOptions:
     nlp_scaling_max_gradient: float = 100.0
     nlp_scaling_min_value: float = 1e-8
     obj_scaling_factor: float = 1.0
+    # linear damping of one-sided bounds (Sec. 3.7): IPOPT 3.14's default, a tenth of the paper's
+    kappa_d: float = 1e-5
     # bound-multiplier safeguard (eq. (16))
     kappa_sigma: float = 1e10
     # filter line search (Sec. 2.3, eqs. (18)-(22))
@@ -141,7 +143,7 @@ class IPMOptions:
         return dataclasses.replace(self, **kw)
 
 
-_NONNEG = ("bound_relax_factor", "sigma_min")
+_NONNEG = ("bound_relax_factor", "sigma_min", "kappa_d")
 _POSITIVE = (
     "tol",
     "s_max",

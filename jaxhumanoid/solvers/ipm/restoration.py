@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from jaxhumanoid.solvers.ipm.barrier import KAPPA_D, barrier_phi
+from jaxhumanoid.solvers.ipm.barrier import barrier_phi
 from jaxhumanoid.solvers.ipm.filter import filter_ok
 from jaxhumanoid.solvers.ipm.options import IPMOptions
 from jaxhumanoid.solvers.ipm.problem import Context, constr_resid, slacks
@@ -40,8 +40,8 @@ def resto_resid(P: Prob, R: Resto, g, s, pv, nv):
 def pn_barrier_grad(o: IPMOptions, R: Resto, rr, mu):
     """Gradients (m,) of the restoration barrier function in p and n: rho - mu/p + kappa_d mu."""
     rho = o.resto_penalty_parameter
-    gp = jnp.where(rr, rho - mu / R.p + KAPPA_D * mu, 0.0)
-    gn = jnp.where(rr, rho - mu / R.n + KAPPA_D * mu, 0.0)
+    gp = jnp.where(rr, rho - mu / R.p + o.kappa_d * mu, 0.0)
+    gn = jnp.where(rr, rho - mu / R.n + o.kappa_d * mu, 0.0)
     return gp, gn
 
 
@@ -55,8 +55,8 @@ def merit(o: IPMOptions, P: Prob, R: Resto, f, g, x, s, pv, nv, mu):
         prox_weight(o, R, mu) * (x - R.xR) ** 2
     )
     pn = jnp.where(rr, pv, 1.0), jnp.where(rr, nv, 1.0)
-    bar_pn = jnp.sum(jnp.where(rr, -mu * (jnp.log(pn[0]) + jnp.log(pn[1])) + KAPPA_D * mu * (pn[0] + pn[1]), 0.0))
-    phi = barrier_phi(P, jnp.where(R.on, f_r, f), x, s, mu) + bar_pn
+    bar_pn = jnp.sum(jnp.where(rr, -mu * (jnp.log(pn[0]) + jnp.log(pn[1])) + o.kappa_d * mu * (pn[0] + pn[1]), 0.0))
+    phi = barrier_phi(P, jnp.where(R.on, f_r, f), x, s, mu, o.kappa_d) + bar_pn
     return theta, phi
 
 
@@ -136,7 +136,7 @@ def restoration_done(o: IPMOptions, P: Prob, R: Resto, f, g, x, s):
     c = constr_resid(P, g, s)
     inf = jnp.max(jnp.abs(c), initial=0.0)
     theta = jnp.sum(jnp.abs(c))
-    phi = barrier_phi(P, f, x, s, R.mu_orig)
+    phi = barrier_phi(P, f, x, s, R.mu_orig, o.kappa_d)
     in_filter = filter_ok(R.outer, theta, phi) & jnp.isfinite(phi)
     progress = (theta <= (1 - o.gamma_theta) * R.theta_ref) | (phi <= R.phi_ref - o.gamma_phi * R.theta_ref)
     enough = inf <= jnp.maximum(o.kappa_resto * R.inf_ref, jnp.minimum(o.tol, o.constr_viol_tol))
