@@ -129,9 +129,9 @@ CONTINUATION_OPTIONS = {"mu_init": 1e-5}
 # violation of 226). The reruns, from the same start, push it inside the bounds as a cold start
 # does (IPOPT's defaults; that T1 problem converges in 806), then add the adaptive barrier update
 # (a perturbed T2 problem with N1 = 50, infeasible with the monotone one, converges in 450;
-# docs/results.md). A later law of the continuation that fails gets the same reruns: the IPM's
-# last law of a perturbed T1 problem under a contact-force limit leaves its small barrier for a
-# restoration phase and crawls to 3000 iterations, where the cold rerun converges in 26.
+# docs/results.md). A later law of the continuation that fails gets the same reruns: IPOPT's law 3
+# of a perturbed T4 problem with N1 = 50 stops at 3000 iterations, and its cold rerun converges in
+# 795 (docs/modelling.md).
 _COLD = {"mu_init": 1e-1, "bound_push": 1e-2, "bound_frac": 1e-2}
 DYNAMIC_FALLBACKS: tuple[dict, ...] = (_COLD, {**_COLD, **_ADAPTIVE})
 _LAW_FIELDS = tuple(f.name for f in dataclasses.fields(ContactParams))
