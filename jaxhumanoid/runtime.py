@@ -30,16 +30,20 @@ import tomllib
 BLAS_CORETYPE = "Haswell"
 
 
+def _cpuinfo() -> str:
+    """/proc/cpuinfo's text, empty where it cannot be read (not Linux)."""
+    try:
+        return pathlib.Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return ""
+
+
 def runs_blas_coretype() -> bool:
     """Whether this CPU has the instructions of ``BLAS_CORETYPE``'s kernels (x86-64 with AVX2 and
     FMA, read from /proc/cpuinfo): OpenBLAS would run a forced core type's kernels without them."""
     if platform.machine().lower() not in ("x86_64", "amd64"):
         return False
-    try:
-        flags = set(pathlib.Path("/proc/cpuinfo").read_text().split())
-    except OSError:
-        return False
-    return {"avx2", "fma"} <= flags
+    return {"avx2", "fma"} <= set(_cpuinfo().split())
 
 
 if "OPENBLAS_CORETYPE" not in os.environ and runs_blas_coretype():  # a set choice (a worker's) stays
@@ -94,11 +98,8 @@ def environment() -> dict:
 
 
 def _cpu_model() -> str:
-    try:
-        lines = pathlib.Path("/proc/cpuinfo").read_text().splitlines()
-    except OSError:
-        return platform.processor()
-    return next((line.split(":", 1)[1].strip() for line in lines if line.startswith("model name")), "")
+    models = (line.split(":", 1)[1].strip() for line in _cpuinfo().splitlines() if line.startswith("model name"))
+    return next(models, platform.processor())
 
 
 def enable_compilation_cache(path: str | None = None) -> str:
