@@ -2,6 +2,7 @@
 iterates as cyipopt's own binding of the same IPOPT build, warm start, errors."""
 
 import dataclasses
+import re
 
 import jax
 import jax.numpy as jnp
@@ -29,6 +30,30 @@ def test_hs071_optimum_and_multipliers():
     assert "EXIT: Optimal Solution Found" in r.log
     # f+g and grad+J are fused: at most one fused call per trial point plus one per iterate and H
     assert r.history["eval_calls"] <= 4 * (r.iterations + 1) + 10
+
+
+def _logged_iterations(log: str) -> list[str]:
+    return re.findall(r"^ *\d+r?[ -]+\d", log, flags=re.MULTILINE)
+
+
+def test_iterations_are_ipopt_s_count_through_the_restoration_phase():
+    """IPOPT reports the iterate where its restoration phase returns twice; the count is its own,
+    and the IPM, which numbers its iterations as IPOPT's log does, takes as many here."""
+    from jaxhumanoid.solvers.ipm import solve_ipm
+
+    nlp, bounds, p, _ = tp.wachter_biegler()
+    x0 = np.array([-1.0, 3.0, 0.5])
+    reports = []
+    r = solve_ipopt(nlp, p, bounds, x0=x0, progress=lambda k, f, c: reports.append(k))
+    assert r.status == "Solve_Succeeded" and "r " in r.log  # it went through the restoration phase
+    assert len(reports) == len(set(reports)) + 1  # one iterate reported twice
+    assert r.iterations == len(_logged_iterations(r.log)) - 1 == 15
+    assert r.history["objective"].size == r.iterations + 1
+    assert solve_ipm(nlp, p, bounds, x0=x0).iterations == r.iterations
+    # ended by the restoration phase, which reports one iterate more than IPOPT counts
+    r = solve_ipopt(nlp, p, bounds, x0=bounds.x0)
+    assert r.status == "Infeasible_Problem_Detected"
+    assert r.iterations == len(_logged_iterations(r.log)) - 1 == 16
 
 
 def test_same_iterates_as_cyipopt_on_the_humanoid():

@@ -5,12 +5,18 @@ memcpy instead of cyipopt's per-entry loop. IPOPT's options pass straight throug
 (``options={"tol": 1e-9, ...}``). The iteration log is written by IPOPT to a file and read back
 into ``NLPResult.log`` (and echoed when ``verbose``); per-iteration statistics come from the
 intermediate callback.
+
+``NLPResult.iterations`` is IPOPT's own count, the "Number of Iterations" of its log. The
+intermediate callback is not a counter: IPOPT reports the iterate where its restoration phase
+returns twice (from the restoration phase and again from the regular one), and a restoration phase
+that ends the solve reports one iterate beyond IPOPT's count.
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
+import re
 import tempfile
 import time
 
@@ -83,6 +89,7 @@ class _Callbacks:
                 "ls_trials",
             )
         }
+        self.iter_counts: list[int] = []
         self.eval_time = 0.0
         self.eval_calls = 0
 
@@ -133,12 +140,29 @@ class _Callbacks:
         alpha_pr,
         ls_trials,
     ):
+        # The iterate where the restoration phase returns is reported again by the regular phase:
+        # its regular-phase statistics replace the restoration phase's, one entry per iterate.
+        again = bool(self.iter_counts) and self.iter_counts[-1] == int(iter_count)
+        if not again:
+            self.iter_counts.append(int(iter_count))
         for key, val in zip(
             self.history, (obj_value, inf_pr, inf_du, mu, d_norm, regularization_size, alpha_du, alpha_pr, ls_trials)
         ):
-            self.history[key].append(val)
+            if again:
+                self.history[key][-1] = val
+            else:
+                self.history[key].append(val)
         if self.progress is not None:
             self.progress(int(iter_count), float(obj_value), float(inf_pr))
+
+
+def _iteration_count(log: str, iter_counts: list[int]) -> int:
+    """IPOPT's iteration count: the "Number of Iterations" of its ``log``, or, where the log does
+    not have it (``file_print_level`` below 3), the last iteration IPOPT reported to the callback."""
+    found = re.findall(r"^Number of Iterations\.+:\s*(\d+)", log, flags=re.MULTILINE)
+    if found:
+        return int(found[-1])
+    return iter_counts[-1] if iter_counts else 0
 
 
 def _finite_or_inf(a, sign):
@@ -201,7 +225,7 @@ def solve_ipopt(
         z_u=z_u,
         status=status,
         success=succeeded(status),
-        iterations=max(len(cb.history["objective"]) - 1, 0),
+        iterations=_iteration_count(log["text"], cb.iter_counts),
         solve_time_s=solve_time,
         compile_time_s=compile_time,
         objective=obj,
