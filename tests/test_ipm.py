@@ -37,6 +37,8 @@ def test_hock_schittkowski_optimum(name):
     assert r.max_constraint_violation <= 1e-6
     assert r.history["obj"].shape == (r.iterations + 1,)
     assert "EXIT: " + r.status in r.log
+    # the same algorithm as IPOPT 3.14 with its defaults: the same iteration count on every problem
+    assert r.iterations == solve_ipopt(nlp, p, bounds).iterations
 
 
 def test_hs071_multipliers_match_ipopt_convention():
@@ -83,7 +85,8 @@ def test_one_sided_bounds_are_damped_with_ipopt_s_kappa_d():
 def test_restoration_phase_as_ipopt_on_wachter_biegler_example(x0, status):
     """The filter line search fails on this example and both starts enter the l1 restoration
     phase; IPOPT 3.14 then ends at the locally infeasible point (-1, 0, 0) from the paper's start
-    and at the optimum from the other one. The IPM must do the same, in as many iterations."""
+    and at the optimum from the other one. The IPM must do the same, in as many iterations (where
+    it converges; IPOPT's count, which takes the iterate where the restoration phase returns once)."""
     nlp, b, p, f_star = tp.wachter_biegler()
     bounds = Bounds(np.array(x0), b.xl, b.xu, b.gl, b.gu)
     r = solve_ipm(nlp, p, bounds)
@@ -92,7 +95,10 @@ def test_restoration_phase_as_ipopt_on_wachter_biegler_example(x0, status):
     assert ord("R") in r.history["kind"], "the filter line search alone must fail on this example"
     assert r.history["resto_iters"][-1] > 0 and r.history["mode"].sum() == r.history["resto_iters"][-1]
     # IPOPT tightens the restoration problem's tolerance once before declaring infeasibility
-    assert abs(r.iterations - ref.iterations) <= 4, (r.iterations, ref.iterations)
+    assert abs(r.iterations - ref.iterations) <= (0 if status == "Solve_Succeeded" else 4), (
+        r.iterations,
+        ref.iterations,
+    )
     np.testing.assert_allclose(r.x, ref.x, atol=1e-6)
     if status == "Solve_Succeeded":
         assert abs(r.objective - f_star) < 1e-6
