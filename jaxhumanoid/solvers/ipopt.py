@@ -89,7 +89,7 @@ class _Callbacks:
                 "ls_trials",
             )
         }
-        self.iter_counts: list[int] = []
+        self.last_iteration = -1  # IPOPT's number of the last iterate reported, -1 before any
         self.eval_time = 0.0
         self.eval_calls = 0
 
@@ -142,27 +142,25 @@ class _Callbacks:
     ):
         # The iterate where the restoration phase returns is reported again by the regular phase:
         # its regular-phase statistics replace the restoration phase's, one entry per iterate.
-        again = bool(self.iter_counts) and self.iter_counts[-1] == int(iter_count)
-        if not again:
-            self.iter_counts.append(int(iter_count))
+        if int(iter_count) == self.last_iteration:
+            for values in self.history.values():
+                values.pop()
+        self.last_iteration = int(iter_count)
         for key, val in zip(
             self.history, (obj_value, inf_pr, inf_du, mu, d_norm, regularization_size, alpha_du, alpha_pr, ls_trials)
         ):
-            if again:
-                self.history[key][-1] = val
-            else:
-                self.history[key].append(val)
+            self.history[key].append(val)
         if self.progress is not None:
             self.progress(int(iter_count), float(obj_value), float(inf_pr))
 
 
-def _iteration_count(log: str, iter_counts: list[int]) -> int:
+def _iteration_count(log: str, last_iteration: int) -> int:
     """IPOPT's iteration count: the "Number of Iterations" of its ``log``, or, where the log does
     not have it (``file_print_level`` below 3), the last iteration IPOPT reported to the callback."""
     found = re.findall(r"^Number of Iterations\.+:\s*(\d+)", log, flags=re.MULTILINE)
     if found:
         return int(found[-1])
-    return iter_counts[-1] if iter_counts else 0
+    return max(last_iteration, 0)
 
 
 def _finite_or_inf(a, sign):
@@ -225,7 +223,7 @@ def solve_ipopt(
         z_u=z_u,
         status=status,
         success=succeeded(status),
-        iterations=_iteration_count(log["text"], cb.iter_counts),
+        iterations=_iteration_count(log["text"], cb.last_iteration),
         solve_time_s=solve_time,
         compile_time_s=compile_time,
         objective=obj,
