@@ -1,6 +1,9 @@
 """CasADi twin of the NLP (7): values and derivatives agree with ours; CasADi's IPOPT solves a small
 problem to the same point as our IPOPT path."""
 
+import dataclasses
+
+import casadi as ca
 import numpy as np
 import pytest
 
@@ -9,6 +12,7 @@ from jaxhumanoid.model.params import ContactParams
 from jaxhumanoid.solvers.ipopt import solve_ipopt
 from jaxhumanoid.strategy.posture import reseat_for_contact
 from jaxhumanoid.strategy.problem import build_problem
+from jaxhumanoid.validation import casadi_backend as cb
 from jaxhumanoid.validation.casadi_backend import build_casadi_nlp, solve_casadi
 from jaxhumanoid.validation.checks import DEFAULT_CASES, cross_validate
 
@@ -78,3 +82,64 @@ def test_rejects_bad_arguments():
         solve_casadi(problem, x0=np.zeros(3))
     with pytest.raises(ValueError, match="options"):
         solve_casadi(problem, options={"no_such_option": 1})
+
+
+def _energy_dynamics(nb, active):
+    """(q, qd, qdd, u, f) -> (B qdd + C qd + G - Q, foot reaction) of the Euler-Lagrange equations of the
+    energy written from the chain geometry, by CasADi's AD: B = d2T/dqd2, C qd = (d/dq (B qd)) qd -
+    dT/dq, G = dV/dq, Q = u + sum_i J_vi^T f_i with J_vi = dO_i/dq; the reaction from the COM
+    accelerations J_l qdd + (d/dq (J_l qd)) qd."""
+    n = nb.n
+    q, qd, qdd, u = (ca.SX.sym(s, n) for s in ("q", "qd", "qdd", "u"))
+    f = ca.SX.sym("f", 2, len(active))
+    theta = ca.cumsum(q)
+    joint, joints, coms = ca.vertcat(0.0, nb.ankle_height), [], []
+    for k in range(n):
+        e = ca.vertcat(ca.cos(theta[k]), ca.sin(theta[k]))
+        joint = joint + nb.a[k] * e
+        joints.append(joint)
+        coms.append(joint - nb.c[k] * e)
+    com_jac = [ca.jacobian(p, q) for p in coms]
+    kinetic = 0.5 * sum(nb.m[k] * ca.sumsqr(com_jac[k] @ qd) + nb.inertia[k] * ca.cumsum(qd)[k] ** 2 for k in range(n))
+    potential = nb.g * sum(nb.m[k] * coms[k][1] for k in range(n))
+    B = ca.hessian(kinetic, qd)[0]
+    cqd = ca.jacobian(ca.gradient(kinetic, qd), q) @ qd - ca.gradient(kinetic, q)
+    Q = u + sum(ca.jacobian(joints[i - 1], q).T @ f[:, j] for j, i in enumerate(active))
+    accel = sum(nb.m[k] * (com_jac[k] @ qdd + ca.jacobian(com_jac[k] @ qd, q) @ qd) for k in range(n))
+    reaction = accel + ca.vertcat(0.0, float(np.sum(nb.m)) * nb.g) - ca.sum2(f)
+    return ca.Function("energy", [q, qd, qdd, u, f], [B @ qdd + cqd + ca.gradient(potential, q) - Q, reaction])
+
+
+def _backend_dynamics(nb, active):
+    n = nb.n
+    q, qd, qdd, u = (ca.SX.sym(s, n) for s in ("q", "qd", "qdd", "u"))
+    f = ca.SX.sym("f", 2, len(active))
+    scalars = lambda v: [v[k] for k in range(v.shape[0])]  # noqa: E731
+    forces = [(f[0, j], f[1, j]) for j in range(len(active))]
+    motion = (cb._cumsum(scalars(qd)), cb._cumsum(scalars(qdd)))  # absolute angle rates
+    residual, reaction = cb._dynamics(nb, cb._Pose.of(scalars(q)), scalars(u), forces, active, motion)
+    return ca.Function("backend", [q, qd, qdd, u, f], [ca.vertcat(*residual), ca.vertcat(*reaction)])
+
+
+@pytest.mark.parametrize("n_links,active", [(5, (1, 4, 5)), (3, (2,))])
+def test_dynamics_match_the_euler_lagrange_equations_of_the_energy(n_links, active):
+    # the backend's O(n) form of (1)-(2) and of the foot reaction against the equations of motion
+    # derived by AD from the kinetic and potential energy, at random states, torques and forces
+    rng = np.random.default_rng(n_links)
+    m = rng.uniform(2.0, 30.0, n_links)
+    nb = dataclasses.replace(
+        cb._numbers(build_problem("T1", "A,F+C,1S", N=3).p),
+        a=rng.uniform(0.2, 0.6, n_links),
+        c=rng.uniform(0.05, 0.2, n_links),
+        m=m,
+        inertia=rng.uniform(0.02, 2.0, n_links),
+    )
+    ours, energy = _backend_dynamics(nb, active), _energy_dynamics(nb, active)
+    for _ in range(5):
+        args = [rng.uniform(-3, 3, n_links), *rng.normal(0, 2, (3, n_links)), rng.normal(0, 300, (2, len(active)))]
+        for mine, theirs in zip(ours(*args), energy(*args)):
+            np.testing.assert_allclose(np.asarray(mine), np.asarray(theirs), rtol=1e-12, atol=1e-9)
+    # the comparison sees a change of one inertia by 1e-6 relative
+    changed = dataclasses.replace(nb, inertia=nb.inertia * (1 + 1e-6 * (np.arange(n_links) == 1)))
+    res_changed, res = (np.asarray(fn(*args)[0]) for fn in (_backend_dynamics(changed, active), energy))
+    assert not np.allclose(res_changed, res, rtol=1e-12, atol=1e-9)

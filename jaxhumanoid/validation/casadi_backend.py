@@ -4,18 +4,37 @@ implementation for cross-validation (``jaxhumanoid.validation.checks``) and a re
 Decision: the model equations are derived here independently of ``jaxhumanoid.model``; only the
 task/scheme/layout definitions (``ocp.transcription.Layout``: free-variable order, constraint order
 per interval, which joints carry forces or clearance constraints) and the numeric parameters (read
-from ``Problem.p``) are shared. A shared model source would let a model bug pass unnoticed, so:
+from ``Problem.p``) are shared. A shared model source would let a model bug pass unnoticed.
 
-* kinematics from the chain geometry directly: O_l = O_{l-1} + a_l e_l, COM_l = O_l - c_l e_l,
-  e_l = (cos theta_l, sin theta_l), theta_l = q_1 + ... + q_l (conventions of ``jaxhumanoid.model``);
-* B(q) = d2T/dqd2 of the kinetic energy T = 1/2 sum_l (m_l |J_l qd|^2 + i_l thetad_l^2), J_l the COM
-  Jacobian obtained by symbolic differentiation, not the paper's pattern form (Sec. II-C);
-* C(q, qd) qd from the Euler-Lagrange equations, d/dt(dT/dqd) - dT/dq - B qdd
-  = (d/dq (B qd)) qd - dT/dq (the Christoffel-symbol form, without forming C);
-* G(q) = dV/dq with V = g sum_l m_l y_COM_l; Q of (2) with joint Jacobians J_vi = dO_i/dq;
-* contact laws (3)-(4) written out (the softplus of (3) as max(z, 0) + log2(1 + 2^-|z|), which is
-  the same function, safe from overflow for deep penetration);
-* foot reaction of (5) from the COM accelerations a_l = J_l qdd + (d/dq (J_l qd)) qd.
+The model, from the paper's Euler-Lagrange equations (1)-(2) in the absolute link angles
+theta_l = q_1 + ... + q_l, e_l = (cos theta_l, sin theta_l), e_l' = (-sin theta_l, cos theta_l):
+
+* joint O_i = O_0 + sum_{k<=i} a_k e_k, and sum_l m_l COM_l = M O_0 + sum_k w_k e_k with the
+  mass-weighted lever w_k = m_k (a_k - c_k) + a_k (m_{k+1} + ... + m_n);
+* kinetic energy T = 1/2 sum_jk S_jk cos(theta_j - theta_k) thetad_j thetad_k with S_jk = a_j w_k
+  (j < k), S_kk = m_k (a_k - c_k)^2 + a_k^2 (m_{k+1} + ... + m_n) + i_k; its Euler-Lagrange
+  equations in theta are sum_k S_jk (cos(theta_j - theta_k) thetadd_k + sin(theta_j - theta_k)
+  thetad_k^2) + g w_j cos theta_j = e_j' . (a_j sum_{i >= j} f_ci). Expanding the angle
+  differences gives cos theta_j (S alpha)_j + sin theta_j (S beta)_j, alpha_k = e_k' . (thetadd_k,
+  thetad_k^2) rotated, so that each product S v costs O(n) through the rank-one structure of S:
+  (S v)_j = w_j (prefix sum of a_k v_k, k < j) + S_jj v_j + a_j (suffix sum of w_k v_k, k > j);
+* the joint coordinates q see these through theta = P q, P lower-triangular ones: the residual of
+  (1) is P^T (theta-residual) - u, a suffix sum, since B = P^T M P, G = P^T G_theta and
+  J_vi^T f = P^T J_vi,theta^T f;
+* foot reaction of Sec. II-E: sum_l m_l a_COM_l + (0, M g) - sum_i f_ci, with sum_l m_l a_COM_l =
+  sum_k w_k d^2 e_k / dt^2 built from the same alpha, beta;
+* contact laws (3)-(4) written out (the softplus of (3) as max(z, 0) + log1p(2^-|z|) / ln 2, the
+  same function, safe from overflow for deep penetration).
+
+The test suite checks this form against the energy: B, C qd and G obtained by CasADi's AD of T and V
+(``tests/test_casadi.py``).
+
+The NLP is built as CasADi does best (the paper's Sec. II-B): one SX function of one interval
+(its 2 s inputs, the stage vectors at both ends), minimal because every trigonometric and
+kinematic subexpression is formed once and shared; it is called on the symbols of every interval,
+which gives one SX graph of the whole problem. IPOPT gets CasADi's exact SX derivatives of it
+(sparse Jacobian and Lagrangian Hessian by AD with graph colouring), evaluated by CasADi's virtual
+machine: no Python runs between IPOPT's iterations unless a ``progress`` callback is asked for.
 
 The chain has n = len(a) links (any n >= 2). Variable order equals our free-variable order and
 constraint order equals ours, so every vector, Jacobian and Hessian compares entry by entry.
@@ -25,7 +44,6 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -64,6 +82,21 @@ class _Numbers:
         """Number of links."""
         return int(self.a.size)
 
+    @property
+    def outboard_mass(self) -> np.ndarray:
+        """m_{k+1} + ... + m_n for each link k."""
+        return np.concatenate([np.cumsum(self.m[::-1])[::-1][1:], [0.0]])
+
+    @property
+    def lever(self) -> np.ndarray:
+        """w_k = m_k (a_k - c_k) + a_k (m_{k+1} + ... + m_n): sum_l m_l COM_l = M O_0 + sum_k w_k e_k."""
+        return self.m * (self.a - self.c) + self.a * self.outboard_mass
+
+    @property
+    def inertia_diagonal(self) -> np.ndarray:
+        """S_kk = m_k (a_k - c_k)^2 + a_k^2 (m_{k+1} + ... + m_n) + i_k (module docstring)."""
+        return self.m * (self.a - self.c) ** 2 + self.a**2 * self.outboard_mass + self.inertia
+
 
 def _numbers(p) -> _Numbers:
     arr = lambda v: np.asarray(v, dtype=np.float64)  # noqa: E731
@@ -89,142 +122,177 @@ def _numbers(p) -> _Numbers:
     )
 
 
-@dataclasses.dataclass(frozen=True)
-class _Model:
-    """CasADi functions of one configuration (pure symbols in, SX out), Sec. II-A/C/D/E."""
-
-    mass_matrix: ca.Function  # q -> B (n x n)                        (1)
-    coriolis: ca.Function  # q, qd -> C qd                            (1)
-    gravity: ca.Function  # q -> G                                    (1)
-    joint_points: ca.Function  # q -> (2 x n) positions of O_1..O_n
-    joint_jacobians: ca.Function  # q -> (2n x n), rows 2i, 2i+1 = J_v of O_{i+1}
-    momentum_rate: ca.Function  # q, qd, qdd -> sum_l m_l a_COM_l      (5)
-
-
-def _model(nb: _Numbers) -> _Model:
-    """Lagrangian mechanics of the chain, derived symbolically (see module docstring)."""
-    n = nb.n
-    q, qd, qdd = ca.SX.sym("q", n), ca.SX.sym("qd", n), ca.SX.sym("qdd", n)
-    theta, thetad = ca.cumsum(q), ca.cumsum(qd)
-    joint: Any = ca.vertcat(0.0, nb.ankle_height)  # DM, then SX once a joint angle enters
-    joints, coms = [], []
-    for l in range(n):
-        e = ca.vertcat(ca.cos(theta[l]), ca.sin(theta[l]))
-        joint = joint + float(nb.a[l]) * e
-        joints.append(joint)
-        coms.append(joint - float(nb.c[l]) * e)
-    com_jac = [ca.jacobian(pc, q) for pc in coms]
-    kinetic = 0.5 * sum(
-        float(nb.m[l]) * ca.sumsqr(com_jac[l] @ qd) + float(nb.inertia[l]) * thetad[l] ** 2 for l in range(n)
-    )
-    potential = nb.g * sum(float(nb.m[l]) * coms[l][1] for l in range(n))
-    B = ca.hessian(kinetic, qd)[0]
-    momentum = ca.gradient(kinetic, qd)
-    cqd = ca.jacobian(momentum, q) @ qd - ca.gradient(kinetic, q)
-    G = ca.gradient(potential, q)
-    P = ca.horzcat(*joints)
-    JV = ca.vertcat(*[ca.jacobian(pj, q) for pj in joints])
-    rate = sum(float(nb.m[l]) * (com_jac[l] @ qdd + ca.jacobian(com_jac[l] @ qd, q) @ qd) for l in range(n))
-    return _Model(
-        mass_matrix=ca.Function("B", [q], [ca.densify(B)]),
-        coriolis=ca.Function("Cqd", [q, qd], [cqd]),
-        gravity=ca.Function("G", [q], [G]),
-        joint_points=ca.Function("O", [q], [P]),
-        joint_jacobians=ca.Function("Jv", [q], [JV]),
-        momentum_rate=ca.Function("mdot", [q, qd, qdd], [rate]),
-    )
-
-
-def _normal_force(nb: _Numbers, y):
-    """(3): f_n = f0 log2(1 + 2^z), z = -kappa y / f0, as f0 (max(z, 0) + log2(1 + 2^-|z|))."""
-    z = -nb.kappa * y / nb.f0
-    return nb.f0 * (ca.fmax(z, 0.0) + ca.log1p(2.0 ** (-ca.fabs(z))) / np.log(2.0))
-
-
-def _contact_forces(nb: _Numbers, model: _Model, q, qd, active) -> list:
-    """[(f_t, f_n)] of (3)-(4) at the joints in ``active``: gap = height of O_i, xd = its x-velocity."""
-    P, JV = model.joint_points(q), model.joint_jacobians(q)
-    out = []
-    for i in active:
-        f_n = _normal_force(nb, P[1, i - 1])
-        xd = JV[2 * (i - 1), :] @ qd
-        out.append(ca.vertcat(-nb.mu * f_n * ca.tanh(xd / nb.xhat), f_n))  # (4)
+def _cumsum(v: list) -> list:
+    out = list(v[:1])
+    for x in v[1:]:
+        out.append(out[-1] + x)
     return out
 
 
-def _generalized_forces(model: _Model, q, u, forces, active):
-    """Q of (2): u + sum_i J_vi^T f_ci."""
-    JV = model.joint_jacobians(q)
-    Q = u
-    for i, f in zip(active, forces):
-        Q = Q + JV[2 * (i - 1) : 2 * i, :].T @ f
-    return Q
+def _sum(v: list):
+    out = v[0]
+    for x in v[1:]:
+        out = out + x
+    return out
 
 
-def _foot_reaction(nb: _Numbers, model: _Model, q, qd, qdd, forces):
-    """Ground reaction on the massless foot: sum_l m_l a_COM_l + (0, M g) - sum_i f_ci (Sec. II-E)."""
-    reaction = model.momentum_rate(q, qd, qdd) + ca.vertcat(0.0, float(np.sum(nb.m)) * nb.g)
-    for f in forces:
-        reaction = reaction - f
-    return reaction
+def _plus(x, y):
+    """x + y, where None stands for a structural zero (no node in the graph)."""
+    return y if x is None else x if y is None else x + y
 
 
-def _foot_constraints(nb: _Numbers, f_c0, u1):
+def _suffix_sum(v: list) -> list:
+    """[v_k + ... + v_n for each k]: P^T v for P the lower-triangular ones."""
+    return _cumsum(v[::-1])[::-1]
+
+
+def _scalars(v) -> list:
+    return [v[k] for k in range(v.shape[0])]
+
+
+@dataclasses.dataclass(frozen=True)
+class _Pose:
+    """cos and sin of the absolute angles of a configuration q, each formed once."""
+
+    cos: list
+    sin: list
+
+    @staticmethod
+    def of(q: list) -> _Pose:
+        theta = _cumsum(q)
+        return _Pose([ca.cos(t) for t in theta], [ca.sin(t) for t in theta])
+
+
+def _heights(nb: _Numbers, pose: _Pose) -> list:
+    """y of O_1..O_n: h_ankle + sum_{k<=i} a_k sin theta_k."""
+    return [nb.ankle_height + y for y in _cumsum([float(nb.a[k]) * s for k, s in enumerate(pose.sin)])]
+
+
+def _normal_force(nb: _Numbers, y):
+    """(3): f_n = f0 log2(1 + 2^z), z = -kappa y / f0, as f0 (max(z, 0) + log1p(2^-|z|) / ln 2)."""
+    z = (-nb.kappa / nb.f0) * y
+    return nb.f0 * ca.fmax(z, 0.0) + (nb.f0 / np.log(2.0)) * ca.log1p(ca.exp(-np.log(2.0) * ca.fabs(z)))
+
+
+def _contact_laws(nb: _Numbers, pose: _Pose, thetad: list, active) -> list:
+    """[(f_t, f_n)] of (3)-(4) at the joints in ``active``: the gap is the height of O_i and the sliding
+    velocity its x-velocity, -sum_{k<=i} a_k sin(theta_k) thetad_k."""
+    heights = _heights(nb, pose)
+    xd = _cumsum([-float(nb.a[k]) * s * td for k, (s, td) in enumerate(zip(pose.sin, thetad))])
+    out = []
+    for i in active:
+        f_n = _normal_force(nb, heights[i - 1])
+        out.append((-nb.mu * f_n * ca.tanh(xd[i - 1] / nb.xhat), f_n))  # (4)
+    return out
+
+
+def _off_diagonal_products(nb: _Numbers, v: list) -> list:
+    """(S v)_j - S_jj v_j = w_j sum_{k<j} a_k v_k + a_j sum_{k>j} w_k v_k (module docstring), in O(n)."""
+    a, w, n = nb.a, nb.lever, nb.n
+    before = _cumsum([float(a[k]) * v[k] for k in range(n - 1)])  # before[j - 1]: the sum over k < j
+    after = _suffix_sum([float(w[k]) * v[k] for k in range(1, n)])  # after[j]: the sum over k > j
+    out = []
+    for j in range(n):
+        terms = ([float(w[j]) * before[j - 1]] if j > 0 else []) + ([float(a[j]) * after[j]] if j < n - 1 else [])
+        out.append(terms[0] + terms[1] if len(terms) == 2 else terms[0])
+    return out
+
+
+def _dynamics(nb: _Numbers, pose: _Pose, u: list, forces: list, active, motion=None) -> tuple[list, list]:
+    """(residual, foot reaction): the residual of (1), B qdd + C qd + G - Q, for ``motion`` =
+    (thetad, thetadd), or of (8), G - Q, for None; and the ground reaction (f_t0, f_n0) on the foot
+    (Sec. II-E). ``forces``: (f_t, f_n) at the joints in ``active``."""
+    n, a, w, d = nb.n, nb.a, nb.lever, nb.inertia_diagonal
+    cos, sin = pose.cos, pose.sin
+    at_joint = dict(zip(active, forces))
+    fx: list = [None] * (n + 1)  # sum of the contact forces at O_i, i >= k (J_vi,theta^T f_i: a_k e_k' . f_i)
+    fy: list = [None] * (n + 1)
+    for k in range(n - 1, -1, -1):
+        here = at_joint.get(k + 1, (None, None))
+        fx[k], fy[k] = _plus(fx[k + 1], here[0]), _plus(fy[k + 1], here[1])
+    weight = float(np.sum(nb.m)) * nb.g
+    reaction = [0.0, weight] if fx[0] is None else [-fx[0], weight - fy[0]]
+    # r_j = cos theta_j along_cos_j + sin theta_j along_sin_j + extra_j
+    along_cos = [_plus(float(nb.g * w[j]), None if fy[j] is None else -float(a[j]) * fy[j]) for j in range(n)]
+    along_sin = [0.0 if fx[j] is None else float(a[j]) * fx[j] for j in range(n)]
+    extra: list = [0.0] * n
+    if motion is not None:
+        thetad, thetadd = motion
+        sq = [td * td for td in thetad]
+        alpha = [c * tdd - s * v for c, s, tdd, v in zip(cos, sin, thetadd, sq)]  # (d^2 e_k / dt^2)_y
+        beta = [s * tdd + c * v for c, s, tdd, v in zip(cos, sin, thetadd, sq)]  # -(d^2 e_k / dt^2)_x
+        s_alpha, s_beta = _off_diagonal_products(nb, alpha), _off_diagonal_products(nb, beta)
+        along_cos = [x + y for x, y in zip(along_cos, s_alpha)]
+        along_sin = [x + y for x, y in zip(along_sin, s_beta)]
+        extra = [float(d[j]) * thetadd[j] for j in range(n)]
+        # sum_l m_l a_COM_l = sum_k w_k d^2 e_k / dt^2
+        reaction[0] = reaction[0] - _sum([float(w[k]) * beta[k] for k in range(n)])
+        reaction[1] = reaction[1] + _sum([float(w[k]) * alpha[k] for k in range(n)])
+    r = [c * x + s * y + e for c, s, x, y, e in zip(cos, sin, along_cos, along_sin, extra)]
+    return [v - uj for v, uj in zip(_suffix_sum(r), u)], reaction
+
+
+def _foot_constraints(nb: _Numbers, f_c0: list, u1) -> list:
     """(5a)-(5c) in product form, each >= 0, tightened by the foot margin."""
-    f_t0, f_n0 = f_c0[0], f_c0[1]
+    f_t0, f_n0 = f_c0
     mu, a0f, a0b = (1.0 - nb.margin_friction) * nb.mu, nb.a0f - nb.margin_cop, nb.a0b - nb.margin_cop
-    return ca.vertcat(f_n0 - nb.margin_load, mu * f_n0 - f_t0, mu * f_n0 + f_t0, a0f * f_n0 + u1, a0b * f_n0 - u1)
+    return [f_n0 - nb.margin_load, mu * f_n0 - f_t0, mu * f_n0 + f_t0, a0f * f_n0 + u1, a0b * f_n0 - u1]
 
 
-def equilibrium_torques(nb: _Numbers, model: _Model, q, active) -> np.ndarray:
+def equilibrium_torques(nb: _Numbers, q, active) -> np.ndarray:
     """u with G(q) = Q(q, 0, u): the fixed u_0 of the initial static equilibrium."""
-    q, rest = ca.DM(q), ca.DM.zeros(nb.n)
-    forces = _contact_forces(nb, model, q, rest, active)
-    return np.asarray(ca.evalf(model.gravity(q) - _generalized_forces(model, q, rest, forces, active))).ravel()
+    qs = ca.SX.sym("q", nb.n)
+    pose, rest = _Pose.of(_scalars(qs)), [0.0] * nb.n
+    gravity, _ = _dynamics(nb, pose, rest, _contact_laws(nb, pose, rest, active), active)
+    return np.asarray(ca.Function("u0", [qs], [ca.vertcat(*gravity)])(q)).ravel()
 
 
-def _interval(nb: _Numbers, model: _Model, layout, za, zb, last: bool):
-    """Constraints of interval k in our order ((6a), (6b) or (8), A-laws, (5), clearance, scheme E's
-    normal forces) and its cost (7)."""
+def _interval_function(nb: _Numbers, layout, last: bool) -> ca.Function:
+    """(z_k, z_k+1) -> (constraints, cost) of one interval in our order ((6a), (6b) or (8), A-laws,
+    (5), clearance, scheme E's normal forces) and its cost (7); z are stage vectors of the full
+    layout: q (n), qd (n), u (n), then the 2|F| contact forces."""
     h, n = nb.T / layout.N, nb.n
-    # stage entries: q (n), qd (n), u (n), then the 2|F| contact forces
-    q0, qd0, u, q1, qd1, u1 = za[0:n], za[n : 2 * n], za[2 * n : 3 * n], zb[0:n], zb[n : 2 * n], zb[2 * n : 3 * n]
-    qbar, qdbar = 0.5 * (q0 + q1), 0.5 * (qd0 + qd1)
-    rate = (q1 - q0) / h if layout.pseudo_static else qdbar
-    laws = _contact_forces(nb, model, qbar, rate, layout.active)
+    za, zb = ca.SX.sym("za", layout.s), ca.SX.sym("zb", layout.s)
+    A, B = _scalars(za), _scalars(zb)
+    q0, qd0, u, q1, qd1, u1 = A[0:n], A[n : 2 * n], A[2 * n : 3 * n], B[0:n], B[n : 2 * n], B[2 * n : 3 * n]
+    pose = _Pose.of([0.5 * (x + y) for x, y in zip(q0, q1)])
+    qdbar = [0.5 * (x + y) for x, y in zip(qd0, qd1)]
+    rate = [(y - x) / h for x, y in zip(q0, q1)] if layout.pseudo_static else qdbar
+    thetad = _cumsum(rate)
+    laws = _contact_laws(nb, pose, thetad, layout.active)
     if layout.augmented:
-        forces = [za[3 * n + 2 * j : 3 * n + 2 * j + 2] for j in range(len(layout.active))]
+        forces = [(A[3 * n + 2 * j], A[3 * n + 2 * j + 1]) for j in range(len(layout.active))]
     else:
         forces = laws
-    parts = [q1 - q0 - h * qdbar]  # (6a)
-    Q = _generalized_forces(model, qbar, u, forces, layout.active)
+    rows = [y - x - h * v for x, y, v in zip(q0, q1, qdbar)]  # (6a)
     if layout.pseudo_static:
-        parts.append(model.gravity(qbar) - Q)  # (8)
-        f_c0 = _foot_reaction(nb, model, qbar, ca.DM.zeros(n), ca.DM.zeros(n), forces)
+        residual, f_c0 = _dynamics(nb, pose, u, forces, layout.active)
+        rows += residual  # (8)
     else:
-        qdd = (qd1 - qd0) / h
-        residual = model.mass_matrix(qbar) @ qdd + model.coriolis(qbar, qdbar) + model.gravity(qbar) - Q
-        parts.append(h * residual)  # (6b)
-        f_c0 = _foot_reaction(nb, model, qbar, qdbar, qdd, forces)
+        thetadd = _cumsum([(y - x) / h for x, y in zip(qd0, qd1)])
+        residual, f_c0 = _dynamics(nb, pose, u, forces, layout.active, (thetad, thetadd))
+        rows += [h * v for v in residual]  # (6b)
     if layout.augmented:
-        parts += [fv - fl for fv, fl in zip(forces, laws)]
-    parts.append(_foot_constraints(nb, f_c0, u[0]))
+        rows += [v - law for f, fl in zip(forces, laws) for v, law in zip(f, fl)]
+    rows += _foot_constraints(nb, f_c0, u[0])
     if layout.clear_joints:
-        heights = model.joint_points(q1)[1, :]
-        parts.append(ca.vertcat(*[heights[i - 1] for i in layout.clear_joints]))
+        heights = _heights(nb, _Pose.of(q1))
+        rows += [heights[i - 1] for i in layout.clear_joints]
     if layout.force_rows:
-        parts.append(ca.vertcat(*[f[1] for f in laws]))  # f_n, bounded above by the force limit
+        rows += [f_n for _, f_n in laws]  # bounded above by the force limit
     w = [float(v) for v in nb.weights]
-    du = (u1 - u) * (0.0 if last else 1.0)
     w_u, w_qd, w_dqd, w_du = w[:n], w[n], w[n + 1], w[n + 2]
-    effort = h * (ca.dot(ca.DM(w_u), u**2) + w_qd * ca.sumsqr(qd0))
-    cost = effort + (w_dqd * ca.sumsqr(qd1 - qd0) + w_du * ca.sumsqr(du)) / h
-    return ca.vertcat(*parts), cost
+    effort = _sum([w_u[j] * u[j] * u[j] + w_qd * qd0[j] * qd0[j] for j in range(n)])
+    change = _sum([w_dqd * (y - x) * (y - x) for x, y in zip(qd0, qd1)])
+    if not last:
+        change = change + _sum([w_du * (y - x) * (y - x) for x, y in zip(u, u1)])
+    return ca.Function("interval", [za, zb], [ca.vertcat(*rows), h * effort + change / h])
 
 
 @dataclasses.dataclass(frozen=True)
 class CasadiNLP:
-    """The NLP (7) as CasADi SX expressions of the symbol ``x`` (our free-variable order)."""
+    """The NLP (7) as CasADi SX expressions of the symbol ``x`` (our free-variable order; with a
+    scaling, the scaled variables y = Dx x of ``ocp.scaling`` and f, g those of the scaled problem)."""
 
     x: ca.SX
     f: ca.SX
@@ -233,34 +301,31 @@ class CasadiNLP:
     build_time_s: float
 
 
-def build_casadi_nlp(problem) -> CasadiNLP:
-    """Build the CasADi twin of ``problem.nlp`` from ``problem.layout`` and the numbers in ``problem.p``."""
+def build_casadi_nlp(problem, scaling: NLPScaling | None = None) -> CasadiNLP:
+    """Build the CasADi twin of ``problem.nlp`` from ``problem.layout`` and the numbers in ``problem.p``:
+    the interval function called on the stage vectors of every interval (module docstring)."""
     t0 = time.perf_counter()
     layout = problem.layout
     nb = _numbers(problem.p)
-    model = _model(nb)
-    u0 = equilibrium_torques(nb, model, nb.q_start, layout.active)
+    u0 = equilibrium_torques(nb, nb.q_start, layout.active)
     free = layout.free_mask()
     x = ca.SX.sym("x", int(free.sum()))
     fixed = np.zeros(free.shape)
     fixed[0, 0 : nb.n], fixed[0, 2 * nb.n : 3 * nb.n] = nb.q_start, u0
-    stages, k_free = [], 0
-    for k in range(layout.N + 1):
-        entries = []
-        for j in range(layout.s):
-            if free[k, j]:
-                entries.append(x[k_free])
-                k_free += 1
-            else:
-                entries.append(ca.SX(fixed[k, j]))
-        stages.append(ca.vertcat(*entries))
-    cons: list = []
-    cost: Any = 0
+    z = ca.SX(ca.DM(fixed.ravel()))
+    z[np.flatnonzero(free.ravel()).tolist()] = x if scaling is None else x / ca.DM(np.asarray(scaling.x))
+    s = layout.s
+    stage = [z[k * s : (k + 1) * s] for k in range(layout.N + 1)]
+    inner, final = _interval_function(nb, layout, last=False), _interval_function(nb, layout, last=True)
+    cons, costs = [], []
     for k in range(layout.N):
-        c_k, l_k = _interval(nb, model, layout, stages[k], stages[k + 1], last=k == layout.N - 1)
+        c_k, l_k = (final if k == layout.N - 1 else inner)(stage[k], stage[k + 1])
         cons.append(c_k)
-        cost = cost + l_k
-    return CasadiNLP(x=x, f=cost, g=ca.vertcat(*cons), u0=u0, build_time_s=time.perf_counter() - t0)
+        costs.append(l_k)
+    f, g = ca.sum1(ca.vertcat(*costs)), ca.vertcat(*cons)
+    if scaling is not None:
+        f, g = float(scaling.obj) * f, ca.DM(np.asarray(scaling.g)) * g
+    return CasadiNLP(x=x, f=f, g=g, u0=u0, build_time_s=time.perf_counter() - t0)
 
 
 def derivative_function(cnlp: CasadiNLP) -> ca.Function:
@@ -352,10 +417,9 @@ def solve_casadi(
     opts = dict(DEFAULT_OPTIONS)
     opts.update(options or {})
     t0 = time.perf_counter()
-    cnlp = build_casadi_nlp(problem)
-    xs, fs, gs, b = cnlp.x, cnlp.f, cnlp.g, bounds
+    cnlp = build_casadi_nlp(problem, scaling)
+    b = bounds
     if scaling is not None:
-        xs, fs, gs = _scaled_graph(cnlp, scaling)
         b = scaled_bounds(bounds, scaling)
         x0 = x0 * np.asarray(scaling.x)
     with captured_log(opts, prefix="casadi_ipopt_") as log:
@@ -363,7 +427,7 @@ def solve_casadi(
             nlpsol_opts: dict = {"ipopt": opts, "print_time": False, "error_on_fail": False}
             if progress is not None:
                 nlpsol_opts["iteration_callback"] = _Progress(nlp.n, nlp.m, b.gl, b.gu, progress)
-            solver = ca.nlpsol("solver", "ipopt", {"x": xs, "f": fs, "g": gs}, nlpsol_opts)
+            solver = ca.nlpsol("solver", "ipopt", {"x": cnlp.x, "f": cnlp.f, "g": cnlp.g}, nlpsol_opts)
         except RuntimeError as err:
             raise ValueError(f"options: CasADi/IPOPT rejected the options {sorted(opts)} ({err})") from err
         build_time = time.perf_counter() - t0
@@ -399,10 +463,3 @@ def solve_casadi(
         return res
     x, g_val = x / np.asarray(scaling.x), g_val / np.asarray(scaling.g)
     return unscaled(res, scaling, constraint_violation(g_val, x, bounds.gl, bounds.gu, bounds.xl, bounds.xu))
-
-
-def _scaled_graph(cnlp: CasadiNLP, s: NLPScaling):
-    """(y, f~, g~) of the scaled problem (``ocp.scaling``) from the graph of ``cnlp``."""
-    y = ca.SX.sym("y", cnlp.x.shape[0])
-    f, g = ca.substitute([cnlp.f, cnlp.g], [cnlp.x], [y / ca.DM(np.asarray(s.x))])
-    return y, float(s.obj) * f, ca.DM(np.asarray(s.g)) * g
