@@ -12,12 +12,13 @@ theta_l = q_1 + ... + q_l, e_l = (cos theta_l, sin theta_l), e_l' = (-sin theta_
 * joint O_i = O_0 + sum_{k<=i} a_k e_k, and sum_l m_l COM_l = M O_0 + sum_k w_k e_k with the
   mass-weighted lever w_k = m_k (a_k - c_k) + a_k (m_{k+1} + ... + m_n);
 * kinetic energy T = 1/2 sum_jk S_jk cos(theta_j - theta_k) thetad_j thetad_k with S_jk = a_j w_k
-  (j < k), S_kk = m_k (a_k - c_k)^2 + a_k^2 (m_{k+1} + ... + m_n) + i_k; its Euler-Lagrange
+  (j < k, S symmetric), S_kk = m_k (a_k - c_k)^2 + a_k^2 (m_{k+1} + ... + m_n) + i_k; its Euler-Lagrange
   equations in theta are sum_k S_jk (cos(theta_j - theta_k) thetadd_k + sin(theta_j - theta_k)
-  thetad_k^2) + g w_j cos theta_j = e_j' . (a_j sum_{i >= j} f_ci). Expanding the angle
-  differences gives cos theta_j (S alpha)_j + sin theta_j (S beta)_j, alpha_k = e_k' . (thetadd_k,
-  thetad_k^2) rotated, so that each product S v costs O(n) through the rank-one structure of S:
-  (S v)_j = w_j (prefix sum of a_k v_k, k < j) + S_jj v_j + a_j (suffix sum of w_k v_k, k > j);
+  thetad_k^2) + g w_j cos theta_j = e_j' . (a_j sum_{i >= j} f_ci). With cos(theta_j - theta_k) =
+  c_j c_k + s_j s_k and sin(theta_j - theta_k) = s_j c_k - c_j s_k the first sum is
+  c_j (S alpha)_j + s_j (S beta)_j, alpha_k = c_k thetadd_k - s_k thetad_k^2, beta_k = s_k thetadd_k
+  + c_k thetad_k^2 (d^2 e_k / dt^2 = (-beta_k, alpha_k)), and S v costs O(n), not O(n^2), by the
+  structure of S: (S v)_j = w_j sum_{k<j} a_k v_k + S_jj v_j + a_j sum_{k>j} w_k v_k;
 * the joint coordinates q see these through theta = P q, P lower-triangular ones: the residual of
   (1) is P^T (theta-residual) - u, a suffix sum, since B = P^T M P, G = P^T G_theta and
   J_vi^T f = P^T J_vi,theta^T f;
