@@ -92,13 +92,10 @@ def implied_bounds(problem) -> np.ndarray:
     row 1 the upper ones.
 
     Under scheme A the contact-force variables equal the contact law (f = f_law(q, qd)), whose
-    normal force is > 0 and whose friction force is bounded by mu f_n: the bounds f_n >= 0 and
-    |f_t| <= f_max are redundant, and so is f_n <= f_max for the wide box
-    ``CONTACT_FORCE_LIMIT``, but not for a task's ``contact_force_limit``, which the optimum may
-    meet. For a contact in the air f_law is ~1e-40, i.e. at the bound f_n >= 0 within IPOPT's
-    bound relaxation, and IPOPT reports z_l = mu / 1e-8 there (a barrier artefact that vanishes
-    as mu -> 0, not an active bound); treating such a bound as active makes the reduced KKT
-    matrix singular (the law row loses all free entries).
+    normal force is > 0 (f_n has no lower bound: ``transcription.bounds_full``) and whose
+    friction force is bounded by mu f_n: the bounds |f_t| <= f_max are redundant, and so is
+    f_n <= f_max for the wide box ``CONTACT_FORCE_LIMIT``, but not for a task's
+    ``contact_force_limit``, which the optimum may meet.
     """
     layout = problem.layout
     lower = np.zeros((layout.N + 1, layout.s), dtype=bool)
