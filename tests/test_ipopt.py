@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import jaxhumanoid  # noqa: F401  (float64)
+from jaxhumanoid.solvers import ipopt_capi
 from jaxhumanoid.solvers.ipopt import solve_cyipopt_reference, solve_ipopt
 from jaxhumanoid.strategy.problem import build_problem
 from jaxhumanoid.validation import testproblems as tp
@@ -93,6 +94,23 @@ def test_errors_are_clear():
         solve_ipopt(nlp, p, bounds, options={"tol": -1.0})
     with pytest.raises(ValueError, match="x0: expected shape"):
         solve_ipopt(nlp, p, bounds, x0=np.zeros(3))
+
+
+def test_integral_values_of_number_options_are_taken():
+    # a command line or a TOML file gives mu_init=1 and tol=1 as integers; IPOPT's integer setter
+    # rejects number options, so they must reach its number setter
+    nlp, bounds, p, _ = tp.hs071()
+    opts = {"mu_init": 1, "tol": 1, "acceptable_tol": 10}
+    ipopt_capi.check_options(opts)
+    res = solve_ipopt(nlp, p, bounds, options={**opts, "tol": 1e-8})
+    assert res.success
+    loose = solve_ipopt(nlp, p, bounds, options=opts)
+    assert loose.iterations < res.iterations  # tol=1 was set, not ignored
+    # integer options still go to the integer setter, with their range checked
+    capped = solve_ipopt(nlp, p, bounds, options={"max_iter": 1, "mu_init": 1})
+    assert capped.status == "Maximum_Iterations_Exceeded" and capped.iterations == 1
+    with pytest.raises(ValueError, match="options\\['max_iter'\\]"):
+        ipopt_capi.check_options({"max_iter": -1})
 
 
 def test_an_exception_in_a_callback_is_raised_not_reported_as_a_status():

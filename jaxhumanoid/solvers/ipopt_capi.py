@@ -55,6 +55,8 @@ INTERMEDIATE = _cb(ctypes.c_bool, _idx, _idx, _num, _num, _num, _num, _num, _num
 
 
 def _library_path() -> str:
+    if os.environ.get("JAXHUMANOID_IPOPT_LIBRARY"):
+        return os.environ["JAXHUMANOID_IPOPT_LIBRARY"]
     # the cyipopt wheel ships libipopt next to itself
     site = os.path.dirname(os.path.dirname(os.path.abspath(cyipopt.__file__)))
     found = sorted(
@@ -120,14 +122,18 @@ def _structure(rows, cols, r: np.ndarray, c: np.ndarray) -> None:
 
 
 def add_option(handle, key: str, val) -> None:
-    """One IPOPT option; raises ValueError naming it when IPOPT rejects the key or value."""
+    """One IPOPT option; raises ValueError naming it when IPOPT rejects the key or value.
+
+    IPOPT has one setter per option type and rejects a value given through another type's setter,
+    so an integral value (``tol=1``, ``mu_init=1`` from a command line or a TOML file) goes to the
+    number setter unless the integer setter takes it."""
     lib = library()
     k = key.encode()
     if isinstance(val, bool) or not isinstance(val, (int, float, np.integer, np.floating, str)):
         raise ValueError(f"options[{key!r}]: expected a str, int or float, got {val!r}")
     if isinstance(val, str):
         ok = lib.AddIpoptStrOption(handle, k, val.encode())
-    elif isinstance(val, (int, np.integer)):
+    elif isinstance(val, (int, np.integer)) and _integer_setter_takes(key, int(val)):
         ok = lib.AddIpoptIntOption(handle, k, int(val))
     else:
         ok = lib.AddIpoptNumOption(handle, k, float(val))
@@ -135,19 +141,43 @@ def add_option(handle, key: str, val) -> None:
         raise ValueError(f"options[{key!r}]: IPOPT rejected the option or its value {val!r} (see IPOPT's option list)")
 
 
+@lru_cache(maxsize=256)
+def _integer_setter_takes(key: str, val: int) -> bool:
+    """Whether IPOPT takes ``val`` for ``key`` through its integer setter, asked of a problem that
+    is never solved (an integer option in range: yes; a number option, or a value out of range,
+    or no such option: no)."""
+    lib = library()
+    handle = _probe_problem()
+    try:
+        with _silenced_stdout():  # IPOPT prints its own complaint about the wrong setter
+            return bool(lib.AddIpoptIntOption(handle, key.encode(), int(val)))
+    finally:
+        lib.FreeIpoptProblem(handle)
+
+
 def _no_eval(*_args):
     return False
+
+
+_NO_EVAL = (EVAL_F(_no_eval), EVAL_G(_no_eval), EVAL_GRAD_F(_no_eval), EVAL_JAC_G(_no_eval), EVAL_H(_no_eval))
+
+
+def _probe_problem():
+    """A one-variable problem that is never solved, to give options to (free it with
+    ``FreeIpoptProblem``)."""
+    lib = library()
+    one = np.zeros(1)
+    handle = lib.CreateIpoptProblem(1, _ptr(one), _ptr(one), 0, _ptr(one), _ptr(one), 0, 0, 0, *_NO_EVAL)
+    if not handle:
+        raise RuntimeError("IPOPT could not create the problem (CreateIpoptProblem returned NULL)")
+    return handle
 
 
 def check_options(options: dict) -> None:
     """Raise ValueError naming the first option whose name or value IPOPT rejects, before any
     problem is built: the options are given to a one-variable problem that is never solved."""
     lib = library()
-    one = np.zeros(1)
-    cbs = (EVAL_F(_no_eval), EVAL_G(_no_eval), EVAL_GRAD_F(_no_eval), EVAL_JAC_G(_no_eval), EVAL_H(_no_eval))
-    handle = lib.CreateIpoptProblem(1, _ptr(one), _ptr(one), 0, _ptr(one), _ptr(one), 0, 0, 0, *cbs)
-    if not handle:
-        raise RuntimeError("IPOPT could not create the problem (CreateIpoptProblem returned NULL)")
+    handle = _probe_problem()
     try:
         with _silenced_stdout():  # IPOPT prints its own complaint; the ValueError says it once
             for key, val in options.items():
