@@ -31,11 +31,16 @@ from typing import Any, NamedTuple
 import jax
 import numpy as np
 
+# XLA's CPU compiler options for the NLP's programs: without the MLIR fusion emitters they compile
+# in about two thirds of the time, to the same bits and the same speed (scripts/bench_iteration.py).
+COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
+
 
 class JittedNLP(NamedTuple):
     """The functions of one NLP under ``jax.jit``. ``fg`` and ``grad_jac`` fuse the pairs a
     solver asks for at the same point (IPOPT: f and g at every trial point, grad f and the
-    Jacobian at every accepted one) into one dispatch each."""
+    Jacobian at every accepted one) into one dispatch each; the single functions are parts of
+    them, so that an NLP compiles three programs."""
 
     fg: Callable[[Any, Any], Any]  # (x, p) -> (f, g)
     grad_jac: Callable[[Any, Any], Any]  # (x, p) -> (grad, jac_values)
@@ -69,14 +74,16 @@ class NLP:
     def jitted(self) -> JittedNLP:
         """The NLP's functions compiled once for this NLP (kept in ``cache``)."""
         if "jitted" not in self.cache:
+            fg = jax.jit(lambda x, p: (self.f(x, p), self.g(x, p)), compiler_options=COMPILER_OPTIONS)
+            grad_jac = jax.jit(lambda x, p: (self.grad(x, p), self.jac_values(x, p)), compiler_options=COMPILER_OPTIONS)
             self.cache["jitted"] = JittedNLP(
-                fg=jax.jit(lambda x, p: (self.f(x, p), self.g(x, p))),
-                grad_jac=jax.jit(lambda x, p: (self.grad(x, p), self.jac_values(x, p))),
-                hess=jax.jit(self.hess_values),
-                f=jax.jit(self.f),
-                g=jax.jit(self.g),
-                grad=jax.jit(self.grad),
-                jac_values=jax.jit(self.jac_values),
+                fg=fg,
+                grad_jac=grad_jac,
+                hess=jax.jit(self.hess_values, compiler_options=COMPILER_OPTIONS),
+                f=lambda x, p: fg(x, p)[0],
+                g=lambda x, p: fg(x, p)[1],
+                grad=lambda x, p: grad_jac(x, p)[0],
+                jac_values=lambda x, p: grad_jac(x, p)[1],
             )
         return self.cache["jitted"]
 

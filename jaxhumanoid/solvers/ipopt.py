@@ -14,7 +14,9 @@ that ends the solve reports one iterate beyond IPOPT's count.
 
 from __future__ import annotations
 
+import concurrent.futures
 import contextlib
+import functools
 import os
 import re
 import tempfile
@@ -94,10 +96,14 @@ class _Callbacks:
         self.eval_calls = 0
 
     def warm_up(self, x, m: int) -> float:
-        """Compile every callback once; returns the compile time."""
+        """Compile every callback, the three programs at once (XLA compiles outside the GIL, so
+        they share the cores); returns the wall time."""
         t0 = time.perf_counter()
-        for out in (*(fn(x, self.p) for fn in self._pairs.values()), self._hess(x, np.ones(m), 1.0, self.p)):
-            jax.block_until_ready(out)
+        calls = [functools.partial(fn, x, self.p) for fn in self._pairs.values()]
+        calls.append(functools.partial(self._hess, x, np.ones(m), 1.0, self.p))
+        with concurrent.futures.ThreadPoolExecutor(len(calls)) as pool:
+            for done in [pool.submit(_run, c) for c in calls]:
+                done.result()
         return time.perf_counter() - t0
 
     def _timed(self, fn, *args):
@@ -154,6 +160,10 @@ class _Callbacks:
             self.progress(int(iter_count), float(obj_value), float(inf_pr))
 
 
+def _run(call):
+    return jax.block_until_ready(call())
+
+
 def _iteration_count(log: str, last_iteration: int) -> int:
     """IPOPT's iteration count: the "Number of Iterations" of its ``log``, or, where the log does
     not have it (``file_print_level`` below 3), the last iteration IPOPT reported to the callback."""
@@ -177,14 +187,16 @@ def solve_ipopt(
     verbose: bool = False,
     warm: NLPResult | None = None,
     progress: IterationCallback | None = None,
+    library_path: str | None = None,
 ) -> NLPResult:
     """Solve ``nlp`` at parameters ``p`` with IPOPT (exact Hessian, MUMPS by default).
 
     ``options`` are IPOPT options, merged over ``DEFAULT_OPTIONS``; ``verbose`` echoes IPOPT's
     iteration log; ``warm`` (an earlier result) supplies starting multipliers (lam_g, z_l, z_u),
     which IPOPT uses with ``warm_start_init_point=yes``; ``progress`` is called with (iteration,
-    objective, primal infeasibility) from IPOPT's intermediate callback. The returned ``NLPResult.success`` is True
-    for Solve_Succeeded and Solved_To_Acceptable_Level only.
+    objective, primal infeasibility) from IPOPT's intermediate callback; ``library_path`` names the
+    IPOPT library (``ipopt_capi.default_library_path()`` if None). The returned ``NLPResult.success``
+    is True for Solve_Succeeded and Solved_To_Acceptable_Level only.
     """
     opts = dict(DEFAULT_OPTIONS)
     opts.update(options or {})
@@ -211,6 +223,7 @@ def solve_ipopt(
             opts,
             x0,
             **mults,
+            library_path=library_path,
         )
         solve_time = time.perf_counter() - t0
     if verbose:

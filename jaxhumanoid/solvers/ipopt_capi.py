@@ -54,10 +54,11 @@ EVAL_H = _cb(
 INTERMEDIATE = _cb(ctypes.c_bool, _idx, _idx, _num, _num, _num, _num, _num, _num, _num, _num, _idx, ctypes.c_void_p)
 
 
-def _library_path() -> str:
+def default_library_path() -> str:
+    """The IPOPT library ``solve`` loads unless told: ``$JAXHUMANOID_IPOPT_LIBRARY``, else the one
+    the pinned cyipopt wheel ships next to itself."""
     if os.environ.get("JAXHUMANOID_IPOPT_LIBRARY"):
         return os.environ["JAXHUMANOID_IPOPT_LIBRARY"]
-    # the cyipopt wheel ships libipopt next to itself
     site = os.path.dirname(os.path.dirname(os.path.abspath(cyipopt.__file__)))
     found = sorted(
         glob.glob(os.path.join(site, "cyipopt*.libs", "libipopt*.so*"))
@@ -71,9 +72,14 @@ def _library_path() -> str:
     return found[0]
 
 
-@lru_cache(maxsize=1)
-def library() -> ctypes.CDLL:
-    lib = ctypes.CDLL(_library_path())
+def library(path: str | None = None) -> ctypes.CDLL:
+    """The IPOPT library at ``path`` (default ``default_library_path()``), loaded once."""
+    return _load(os.path.realpath(path or default_library_path()))
+
+
+@lru_cache(maxsize=4)
+def _load(path: str) -> ctypes.CDLL:
+    lib = ctypes.CDLL(path)
     lib.CreateIpoptProblem.restype = ctypes.c_void_p
     lib.CreateIpoptProblem.argtypes = [
         _idx,
@@ -121,13 +127,13 @@ def _structure(rows, cols, r: np.ndarray, c: np.ndarray) -> None:
     np.ctypeslib.as_array(cols, shape=c.shape)[:] = c
 
 
-def add_option(handle, key: str, val) -> None:
+def add_option(handle, key: str, val, lib: ctypes.CDLL | None = None) -> None:
     """One IPOPT option; raises ValueError naming it when IPOPT rejects the key or value.
 
     IPOPT has one setter per option type and rejects a value given through another type's setter,
     so an integral value (``tol=1``, ``mu_init=1`` from a command line or a TOML file) goes to the
     number setter unless the integer setter takes it."""
-    lib = library()
+    lib = lib or library()
     k = key.encode()
     if isinstance(val, bool) or not isinstance(val, (int, float, np.integer, np.floating, str)):
         raise ValueError(f"options[{key!r}]: expected a str, int or float, got {val!r}")
@@ -216,9 +222,11 @@ def solve(
     mult_g=None,
     mult_x_L=None,
     mult_x_U=None,
+    library_path: str | None = None,
 ):
-    """Run ``IpoptSolve``; returns (status code, x, g, obj, mult_g, mult_x_L, mult_x_U)."""
-    lib = library()
+    """Run ``IpoptSolve`` of the IPOPT library at ``library_path`` (default
+    ``default_library_path()``); returns (status code, x, g, obj, mult_g, mult_x_L, mult_x_U)."""
+    lib = library(library_path)
     jr, jc = (np.ascontiguousarray(a, dtype=np.int32) for a in jac_structure)
     hr, hc = (np.ascontiguousarray(a, dtype=np.int32) for a in hess_structure)
     nnz_j, nnz_h = jr.size, hr.size
@@ -288,7 +296,7 @@ def solve(
     inter = INTERMEDIATE(intermediate)
     try:
         for key, val in options.items():
-            add_option(handle, key, val)
+            add_option(handle, key, val, lib)
         lib.SetIntermediateCallback(handle, inter)
         x = np.array(x0, dtype=float)
         g, obj = np.zeros(m), np.zeros(1)
