@@ -31,9 +31,11 @@ from typing import Any, NamedTuple
 import jax
 import numpy as np
 
-# XLA's CPU compiler options for the NLP's programs: without the MLIR fusion emitters they compile
-# in about two thirds of the time, to the same bits and the same speed (scripts/bench_iteration.py).
-COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
+# XLA's CPU compiler options for the NLP's programs (jaxlib is pinned: the names are its). Without
+# the MLIR fusion emitters they compile in two thirds of the time, to the same bits and speed;
+# without YNNPACK's fusions (its reductions and dots) an IPOPT iteration's evaluations take a
+# quarter less time (scripts/bench_iteration.py).
+COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False, "xla_cpu_experimental_ynn_fusion_type": ""}
 
 
 class JittedNLP(NamedTuple):
