@@ -15,8 +15,9 @@ every such CPU. OpenBLAS runs a forced core type without checking the CPU's inst
 CPU without AVX2 and FMA (or whose flags cannot be read) keeps its own kernels. A program that
 loads numpy before this module keeps the CPU's own kernels for numpy, and a warning says so: set
 the variable before Python starts for bit-for-bit results there (the command line, the studies'
-workers and the tests have it). The pin costs no speed: IPOPT's KKT solves (MUMPS on the wheel's
-OpenBLAS) take the same time per iteration on Haswell's and on SkylakeX's kernels.
+workers and the tests have it). The pin costs no measurable speed: IPOPT's KKT solves on the
+cyipopt wheel's OpenBLAS took as long per iteration on Haswell's as on SkylakeX's kernels, and the
+casadi wheel's IPOPT (the default, ``solvers.ipopt_capi``) runs on one fixed kernel set anyway.
 """
 
 from __future__ import annotations
@@ -112,7 +113,7 @@ def blas_kernels() -> dict[str, str]:
 
 def environment() -> dict:
     """What a result's bits depend on besides its inputs: the package versions, the CPU, the BLAS
-    kernels in use and the thread settings (``report.json``'s ``environment``)."""
+    kernels and IPOPT libraries in use and the thread settings (``report.json``'s ``environment``)."""
     versions: dict[str, str | None] = {}
     for name in _PACKAGES:
         try:
@@ -125,10 +126,22 @@ def environment() -> dict:
         "machine": platform.machine(),
         "cpu": _cpu_model(),
         "blas_kernels": blas_kernels(),
+        "ipopt_libraries": _loaded_libraries("libipopt"),
         "OPENBLAS_CORETYPE": os.environ.get("OPENBLAS_CORETYPE"),
         "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS"),
         "platform": sys.platform,
     }
+
+
+def _loaded_libraries(stem: str) -> list[str]:
+    """The files of the loaded libraries whose name starts with ``stem`` (e.g. the IPOPT a solve
+    ran), from /proc/self/maps; empty where it cannot be read."""
+    try:
+        maps = pathlib.Path("/proc/self/maps").read_text()
+    except OSError:
+        return []
+    paths = {f[5] for f in (line.split(maxsplit=5) for line in maps.splitlines()) if len(f) == 6}
+    return sorted(p for p in paths if pathlib.Path(p).name.startswith(stem))
 
 
 def _cpu_model() -> str:

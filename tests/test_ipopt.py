@@ -2,6 +2,7 @@
 iterates as cyipopt's own binding of the same IPOPT build, warm start, errors."""
 
 import dataclasses
+import os
 import re
 
 import jax
@@ -57,9 +58,9 @@ def test_same_iterates_as_cyipopt_on_the_humanoid():
     pytest.importorskip("cyipopt")
     pr = build_problem("T1", "A,F+C,1S", N=8)
     opts = {"max_iter": 25, "tol": 1e-8}
-    ours = solve_ipopt(pr.nlp, pr.p, pr.bounds, options=opts)
+    ours = solve_ipopt(pr.nlp, pr.p, pr.bounds, options=opts, library_path=ipopt_capi.wheel_library_path())
     x_ref, info, _ = solve_cyipopt_reference(pr.nlp, pr.p, pr.bounds, options=opts)
-    # one IPOPT build, the same callback values: the iterates agree to round-off
+    # one IPOPT build (the cyipopt wheel's), the same callback values: the iterates agree to round-off
     np.testing.assert_allclose(ours.x, x_ref, rtol=0, atol=1e-9)
     np.testing.assert_allclose(ours.lam_g, info["mult_g"], rtol=0, atol=1e-6 * max(1.0, np.abs(info["mult_g"]).max()))
     assert abs(ours.objective - info["obj_val"]) <= 1e-9 * max(1.0, abs(info["obj_val"]))
@@ -84,6 +85,21 @@ def test_warm_start_from_multipliers_converges_at_once():
     )
     assert warm.success and warm.iterations <= 2 < cold.iterations
     np.testing.assert_allclose(warm.x, cold.x, atol=1e-8)
+
+
+def test_both_ipopt_libraries_solve_to_one_optimum():
+    # the casadi wheel's IPOPT (the default where present) and the cyipopt wheel's
+    casadi_lib = ipopt_capi.casadi_library_path()
+    if casadi_lib is None:
+        pytest.skip("the casadi wheel ships no IPOPT library here")
+    assert ipopt_capi.default_library_path() == casadi_lib or "JAXHUMANOID_IPOPT_LIBRARY" in os.environ
+    nlp, bounds, p, expected = tp.hs071()
+    runs = [solve_ipopt(nlp, p, bounds, options={"tol": 1e-10}, library_path=lib) for lib in (casadi_lib, None)]
+    runs.append(solve_ipopt(nlp, p, bounds, options={"tol": 1e-10}, library_path=ipopt_capi.wheel_library_path()))
+    for r in runs:
+        assert r.success
+        np.testing.assert_allclose(r.x, runs[0].x, atol=1e-8)
+    assert "3.14.19" in runs[0].log and "3.14.11" in runs[2].log  # the banner names each build
 
 
 def test_errors_are_clear():

@@ -1,10 +1,11 @@
-"""IPOPT (the library of the pinned cyipopt wheel), with exact sparse Jacobian and Hessian from JAX.
+"""IPOPT with exact sparse Jacobian and Hessian from JAX.
 
 IPOPT is driven through its C interface (``ipopt_capi``), which copies derivative values with one
-memcpy instead of cyipopt's per-entry loop. IPOPT's options pass straight through
-(``options={"tol": 1e-9, ...}``). The iteration log is written by IPOPT to a file and read back
-into ``NLPResult.log`` (and echoed when ``verbose``); per-iteration statistics come from the
-intermediate callback.
+memcpy instead of cyipopt's per-entry loop. The library is the casadi wheel's (IPOPT 3.14.19 with
+METIS-ordered MUMPS; ``ipopt_capi.default_library_path``), or the cyipopt wheel's where asked.
+IPOPT's options pass straight through (``options={"tol": 1e-9, ...}``). The iteration log is
+written by IPOPT to a file and read back into ``NLPResult.log`` (and echoed when ``verbose``);
+per-iteration statistics come from the intermediate callback.
 
 ``NLPResult.iterations`` is IPOPT's own count, the "Number of Iterations" of its log. The
 intermediate callback is not a counter: IPOPT reports the iterate where its restoration phase
@@ -251,10 +252,12 @@ def solve_ipopt(
 
 
 def solve_cyipopt_reference(nlp: NLP, p, bounds: Bounds, x0=None, options: dict | None = None):
-    """The same solve through cyipopt's own Python binding (no fused calls, per-entry copies).
+    """The same solve through cyipopt's own Python binding (no fused calls, per-entry copies) and
+    its wheel's IPOPT library.
 
-    For cross-checks and benchmarks of ``solve_ipopt`` only: same IPOPT build, so the iterates
-    must agree to round-off. Returns (x, info, solve_time_s) as cyipopt gives them.
+    For cross-checks and benchmarks of ``solve_ipopt`` only: with ``library_path=
+    ipopt_capi.wheel_library_path()`` that is the same IPOPT build, so the iterates must agree to
+    round-off. Returns (x, info, solve_time_s) as cyipopt gives them.
     """
     jitted = nlp.jitted()
     f, g, grad, jac, hess = jitted.f, jitted.g, jitted.grad, jitted.jac_values, jitted.hess

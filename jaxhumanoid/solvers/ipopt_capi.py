@@ -1,7 +1,8 @@
 """IPOPT's C interface (``IpStdCInterface.h``, IPOPT 3.14) through ctypes.
 
-The IPOPT library is the one the pinned ``cyipopt-wheels`` package ships. cyipopt's own callbacks
-copy every Jacobian and Hessian value into IPOPT's arrays one Python object at a time, which costs
+The IPOPT library is the one the pinned casadi wheel ships (``default_library_path``; the pinned
+``cyipopt-wheels`` package's where casadi has none, or by choice). cyipopt's own callbacks copy
+every Jacobian and Hessian value into IPOPT's arrays one Python object at a time, which costs
 milliseconds per iteration at N = 100 (30k Jacobian and 19k Hessian nonzeros); here the values are
 written with one ``memcpy`` into a numpy view of IPOPT's buffer, and IPOPT's ``new_x`` flag tells
 the caller when x has changed.
@@ -55,10 +56,31 @@ INTERMEDIATE = _cb(ctypes.c_bool, _idx, _idx, _num, _num, _num, _num, _num, _num
 
 
 def default_library_path() -> str:
-    """The IPOPT library ``solve`` loads unless told: ``$JAXHUMANOID_IPOPT_LIBRARY``, else the one
-    the pinned cyipopt wheel ships next to itself."""
-    if os.environ.get("JAXHUMANOID_IPOPT_LIBRARY"):
-        return os.environ["JAXHUMANOID_IPOPT_LIBRARY"]
+    """The IPOPT library ``solve`` loads unless told: ``$JAXHUMANOID_IPOPT_LIBRARY``, else the
+    casadi wheel's (``casadi_library_path``), else the cyipopt wheel's (``wheel_library_path``)."""
+    return os.environ.get("JAXHUMANOID_IPOPT_LIBRARY") or casadi_library_path() or wheel_library_path()
+
+
+def casadi_library_path() -> str | None:
+    """The IPOPT library of the pinned casadi wheel (IPOPT 3.14.19, MUMPS with METIS, OpenBLAS on
+    one kernel set for every x86-64 CPU), None where it has none. Its KKT solves take 16-38 % less
+    time per iteration than the cyipopt wheel's on the reference posing's T1 and T4
+    (scripts/bench_iteration.py): MUMPS orders the KKT matrices with METIS there."""
+    try:
+        import casadi  # noqa: PLC0415  (only to find its folder)
+    except ImportError:
+        return None
+    folder = os.path.dirname(os.path.abspath(casadi.__file__))
+    for pattern in ("libipopt.so*", "libipopt*.dylib", "libipopt*.dll", "ipopt*.dll"):
+        found = sorted(glob.glob(os.path.join(folder, pattern)))
+        if found:
+            return found[0]
+    return None
+
+
+def wheel_library_path() -> str:
+    """The IPOPT library the pinned cyipopt wheel ships next to itself (IPOPT 3.14.11, MUMPS
+    without METIS): the one cyipopt's own binding runs (``ipopt.solve_cyipopt_reference``)."""
     site = os.path.dirname(os.path.dirname(os.path.abspath(cyipopt.__file__)))
     found = sorted(
         glob.glob(os.path.join(site, "cyipopt*.libs", "libipopt*.so*"))
