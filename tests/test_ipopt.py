@@ -66,6 +66,18 @@ def test_same_iterates_as_cyipopt_on_the_humanoid():
     assert abs(ours.objective - info["obj_val"]) <= 1e-9 * max(1.0, abs(info["obj_val"]))
 
 
+def test_programs_compiled_ahead_are_the_ones_the_solve_runs():
+    pr = build_problem("T1", "A,F+C,1S", N=6)
+    pr.nlp.precompile(pr.bounds.x0, pr.p).result()
+    ev = pr.nlp.jitted()
+    sizes = [fn._cache_size() for fn in (ev.fg, ev.grad_jac, ev.hess)]
+    assert sizes == [1, 1, 1]
+    solve_ipopt(pr.nlp, pr.p, pr.bounds, options={"max_iter": 3})
+    assert [fn._cache_size() for fn in (ev.fg, ev.grad_jac, ev.hess)] == sizes  # no other signature traced
+    with pytest.raises(ValueError):  # an error in a program comes back through the future
+        pr.nlp.precompile(np.zeros(pr.nlp.n + 1), pr.p).result()
+
+
 def test_warm_start_from_multipliers_converges_at_once():
     nlp, bounds, p, _ = tp.hs071()
     cold = solve_ipopt(nlp, p, bounds, options={"tol": 1e-10})

@@ -24,6 +24,7 @@ the sensitivities call these, so one NLP is traced once however many modules eva
 
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
 from collections.abc import Callable
 from typing import Any, NamedTuple
@@ -89,6 +90,20 @@ class NLP:
             )
         return self.cache["jitted"]
 
+    def precompile(self, x, p) -> concurrent.futures.Future:
+        """Compile the three programs of ``jitted()`` for arguments shaped like x (n,) and p, in
+        background threads (XLA compiles outside the GIL, so they share the cores with the caller
+        and with each other). Returns a future that is done when all three are; calls at these
+        shapes then run at once, e.g. a later stage's programs compiled while an earlier stage
+        solves."""
+        ev = self.jitted()
+        calls = [(ev.fg, (x, p)), (ev.grad_jac, (x, p)), (ev.hess, (x, np.ones(self.m), 1.0, p))]
+        pool = concurrent.futures.ThreadPoolExecutor(len(calls) + 1)
+        parts = [pool.submit(_run, fn, args) for fn, args in calls]
+        done = pool.submit(_wait, parts)  # raises the first error of the three
+        pool.shutdown(wait=False)
+        return done
+
     @property
     def nnz_jac(self) -> int:
         return int(self.jac_rows.size)
@@ -96,6 +111,15 @@ class NLP:
     @property
     def nnz_hess(self) -> int:
         return int(self.hess_rows.size)
+
+
+def _run(fn, args):
+    return jax.block_until_ready(fn(*args))
+
+
+def _wait(futures) -> None:
+    for f in futures:
+        f.result()
 
 
 @dataclasses.dataclass(frozen=True)

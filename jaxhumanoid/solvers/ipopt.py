@@ -15,9 +15,7 @@ that ends the solve reports one iterate beyond IPOPT's count.
 
 from __future__ import annotations
 
-import concurrent.futures
 import contextlib
-import functools
 import os
 import re
 import tempfile
@@ -96,15 +94,11 @@ class _Callbacks:
         self.eval_time = 0.0
         self.eval_calls = 0
 
-    def warm_up(self, x, m: int) -> float:
-        """Compile every callback, the three programs at once (XLA compiles outside the GIL, so
-        they share the cores); returns the wall time."""
+    def warm_up(self, nlp: NLP, x) -> float:
+        """Compile every callback, the three programs at once (``NLP.precompile``); returns the
+        wall time (none where they were compiled already)."""
         t0 = time.perf_counter()
-        calls = [functools.partial(fn, x, self.p) for fn in self._pairs.values()]
-        calls.append(functools.partial(self._hess, x, np.ones(m), 1.0, self.p))
-        with concurrent.futures.ThreadPoolExecutor(len(calls)) as pool:
-            for done in [pool.submit(_run, c) for c in calls]:
-                done.result()
+        nlp.precompile(x, self.p).result()
         return time.perf_counter() - t0
 
     def _timed(self, fn, *args):
@@ -161,10 +155,6 @@ class _Callbacks:
             self.progress(int(iter_count), float(obj_value), float(inf_pr))
 
 
-def _run(call):
-    return jax.block_until_ready(call())
-
-
 def _iteration_count(log: str, last_iteration: int) -> int:
     """IPOPT's iteration count: the "Number of Iterations" of its ``log``, or, where the log does
     not have it (``file_print_level`` below 3), the last iteration IPOPT reported to the callback."""
@@ -207,7 +197,7 @@ def solve_ipopt(
     if not np.all(np.isfinite(x0)):
         raise ValueError("x0: contains NaN or inf")
     cb = _Callbacks(nlp, p, progress)
-    compile_time = cb.warm_up(x0, nlp.m)
+    compile_time = cb.warm_up(nlp, x0)
     mults = {} if warm is None else {"mult_g": warm.lam_g, "mult_x_L": warm.z_l, "mult_x_U": warm.z_u}
     with captured_log(opts) as log:
         t0 = time.perf_counter()
