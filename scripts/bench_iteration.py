@@ -2,7 +2,7 @@
 
     OMP_NUM_THREADS=1 python scripts/bench_iteration.py [--tasks T1 T4] [--task-dir DIR] [--runs 3]
         [--parts evals kkt solve compile] [--variant NAME[,env:KEY=VALUE][,opt:KEY=VALUE][,lib:PATH|casadi] ...]
-        [--kkt-iterations 60] [--out results/bench_iteration.json]
+        [--kkt-iterations 60] [--start-dir DIR] [--out results/bench_iteration.json]
 
 Each part is timed in CPU seconds (steady on a shared machine) and wall seconds:
 
@@ -23,7 +23,7 @@ Each part is timed in CPU seconds (steady on a shared machine) and wall seconds:
 A variant is a name and settings: ``env:KEY=VALUE`` sets an environment variable of the processes
 it starts (``OPENBLAS_CORETYPE``; ``PYTHONPATH`` of another checkout runs that code),
 ``opt:KEY=VALUE`` an IPOPT option of every stage, ``lib:PATH`` the IPOPT library (``lib:casadi``
-the casadi wheel's). ``--task-dir`` reads ``DIR/T1.toml`` ... (e.g. the reference posing of
+the casadi wheel's), ``sweeps:joint|grouped`` the derivative sweeps (kkt part). ``--task-dir`` reads ``DIR/T1.toml`` ... (e.g. the reference posing of
 another implementation) instead of the built-in tasks. The record (``--out``) carries the git
 commit and the environment (``jaxhumanoid.runtime.environment``). This script imports no other
 script.
@@ -73,19 +73,24 @@ def casadi_ipopt_library() -> str:
 
 def _parse_variant(text: str) -> dict:
     name, *specs = text.split(",")
-    env, opts, lib = {}, {}, None
+    env, opts, lib, sweeps = {}, {}, None, None
     for spec in specs:
         kind, _, pair = spec.partition(":")
         if kind == "lib":
             lib = casadi_ipopt_library() if pair == "casadi" else pair
             continue
+        if kind == "sweeps":
+            sweeps = pair
+            continue
         key, _, val = pair.partition("=")
         if kind not in ("env", "opt") or not key or not _:
-            raise SystemExit(f"--variant {text!r}: expected NAME[,env:KEY=VALUE][,opt:KEY=VALUE][,lib:PATH|casadi]")
+            raise SystemExit(
+                f"--variant {text!r}: expected NAME[,env:KEY=VALUE][,opt:KEY=VALUE][,lib:PATH|casadi][,sweeps:joint|grouped]"
+            )
         (env if kind == "env" else opts)[key] = val
     if lib:
         env["JAXHUMANOID_IPOPT_LIBRARY"] = lib
-    return {"name": name, "env": env, "options": opts, "library": lib}
+    return {"name": name, "env": env, "options": opts, "library": lib, "sweeps": sweeps}
 
 
 def _solve_kwargs(task: str, task_dir: str | None) -> dict:
@@ -333,22 +338,38 @@ def final_stage(task: str, task_dir: str | None) -> dict:
     return calls[-1]
 
 
-def part_kkt(tasks, task_dir, variants, runs, iterations: int) -> list[dict]:
-    """IPOPT's KKT solves per iteration, every variant (IPOPT library and options; ``env:``
-    settings do not apply) in this process in alternation: the dynamic stage (N = 100) of each
-    task's 2S solve from its own start (``final_stage``), ``iterations`` iterations."""
+def part_kkt(tasks, task_dir, variants, runs, iterations: int, start_dir: str | None = None) -> list[dict]:
+    """IPOPT's KKT solves and evaluations per iteration, every variant (IPOPT library, IPOPT
+    options, derivative sweeps; ``env:`` settings do not apply) in this process in alternation:
+    the dynamic stage (N = 100) of each task's 2S solve from its own start (``final_stage``),
+    ``iterations`` iterations. With ``start_dir`` the start is read from (or, absent, written to)
+    ``start_dir/<task>.pkl``, so that another checkout (``PYTHONPATH``) runs from the same start."""
+    import pickle
+
     from jaxhumanoid.solvers.ipopt import solve_ipopt
+    from jaxhumanoid.strategy.problem import build_problem, with_sweeps
 
     rows = []
     for task in tasks:
-        st = final_stage(task, task_dir)
+        saved = pathlib.Path(start_dir) / f"{task}.pkl" if start_dir else None
+        if saved is not None and saved.exists():
+            st = pickle.loads(saved.read_bytes())
+        else:
+            st = final_stage(task, task_dir)
+            if saved is not None:
+                saved.parent.mkdir(parents=True, exist_ok=True)
+                saved.write_bytes(pickle.dumps({k: st[k] for k in ("p", "bounds", "x0", "options")}))
+        kw = _solve_kwargs(task, task_dir)
+        problem = build_problem(
+            kw["task"], "A,F+C,1S", N=100, model=kw.get("model"), foot=kw.get("foot"), guess="linear"
+        )
         base_opts = {**st["options"], "max_iter": iterations, "print_timing_statistics": "yes"}
         for run in range(runs):
             for var in variants if run % 2 == 0 else variants[::-1]:
                 opts = {**base_opts, **{k: _option_value(v) for k, v in var["options"].items()}}
-                res = solve_ipopt(
-                    st["nlp"], st["p"], st["bounds"], x0=st["x0"], options=opts, library_path=var.get("library")
-                )
+                nlp = with_sweeps(problem, var["sweeps"]).nlp if var.get("sweeps") else problem.nlp
+                lib = {"library_path": var["library"]} if var.get("library") else {}
+                res = solve_ipopt(nlp, st["p"], st["bounds"], x0=st["x0"], options=opts, **lib)
                 stats = timing_statistics(res.log)[-1]
                 its = max(stats["iterations"], 1)
                 row = {
@@ -447,6 +468,7 @@ def main():
         "--parts", nargs="*", default=["evals", "solve", "compile"], choices=["evals", "kkt", "solve", "compile"]
     )
     ap.add_argument("--kkt-iterations", type=int, default=60, help="iterations of each run of the kkt part")
+    ap.add_argument("--start-dir", default=None, help="kkt part: read (or write) each task's start there")
     ap.add_argument(
         "--variant", action="append", default=None, help="NAME[,env:KEY=VALUE][,opt:KEY=VALUE] (repeatable)"
     )
@@ -465,7 +487,7 @@ def main():
     if "evals" in args.parts:
         record["evals"] = part_evals(args.tasks, args.task_dir)
     if "kkt" in args.parts:
-        record["kkt"] = part_kkt(args.tasks, args.task_dir, variants, args.runs, args.kkt_iterations)
+        record["kkt"] = part_kkt(args.tasks, args.task_dir, variants, args.runs, args.kkt_iterations, args.start_dir)
     if "solve" in args.parts:
         record["solve_runs"] = part_solve(args.tasks, args.task_dir, variants, args.runs)
         record["solve"] = summarise_solve(record["solve_runs"])
