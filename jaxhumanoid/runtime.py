@@ -5,15 +5,19 @@ output folders (errors that name the field).
 Importing this module turns on ``jax_enable_x64``: every model, transcription and solver function
 works in double precision. It is the only module that writes JAX's configuration.
 
-It also sets ``OPENBLAS_CORETYPE=Haswell`` (unless set) before numpy loads, on x86-64 Linux CPUs
-with AVX2 and FMA. The OpenBLAS builds that numpy, scipy (and through it JAX's LAPACK calls) and
+It also sets ``OPENBLAS_CORETYPE=Haswell`` (unless set) in the process's environment, which
+child processes inherit, before numpy loads, on x86-64 Linux CPUs with AVX2 and FMA
+(``pin_blas_kernels``). The OpenBLAS builds that numpy, scipy (and through it JAX's LAPACK calls) and
 IPOPT's MUMPS load pick their kernels by CPU (SkylakeX on AVX-512, Haswell or Zen on AVX2), and the
 kernels round differently. These NLPs are chaotic: a start posture seated by a least-squares step
 one ulp away can end at another optimum. With Haswell's kernels a solve gives the same bits on
 every such CPU. OpenBLAS runs a forced core type without checking the CPU's instructions, so a
 CPU without AVX2 and FMA (or whose flags cannot be read) keeps its own kernels. A program that
-loads numpy before this module keeps the CPU's own kernels too: set the variable before Python
-starts for bit-for-bit results there (the command line, the studies' workers and the tests have it).
+loads numpy before this module keeps the CPU's own kernels for numpy, and a warning says so: set
+the variable before Python starts for bit-for-bit results there (the command line, the studies'
+workers and the tests have it). The pin costs no measurable speed: IPOPT's KKT solves on the
+cyipopt wheel's OpenBLAS took as long per iteration on Haswell's as on SkylakeX's kernels, and the
+casadi wheel's IPOPT (the default, ``solvers.ipopt_capi``) runs on one fixed kernel set anyway.
 """
 
 from __future__ import annotations
@@ -26,6 +30,7 @@ import platform
 import sys
 import tempfile
 import tomllib
+import warnings
 
 BLAS_CORETYPE = "Haswell"
 
@@ -46,8 +51,38 @@ def runs_blas_coretype() -> bool:
     return {"avx2", "fma"} <= set(_cpuinfo().split())
 
 
-if "OPENBLAS_CORETYPE" not in os.environ and runs_blas_coretype():  # a set choice (a worker's) stays
+def _loaded_openblas() -> list[str]:
+    """The folders of the OpenBLAS libraries this process has loaded so far (``numpy.libs``, ...):
+    from /proc/self/maps, else numpy's if numpy is imported (where the maps cannot be read)."""
+    try:
+        maps = pathlib.Path("/proc/self/maps").read_text()
+    except OSError:
+        return ["numpy"] if "numpy" in sys.modules else []
+    paths = {line.split(maxsplit=5)[-1] for line in maps.splitlines() if "openblas" in line.lower()}
+    return sorted({pathlib.Path(p).parent.name for p in paths if "openblas" in pathlib.Path(p).name.lower()})
+
+
+def pin_blas_kernels() -> bool:
+    """Set ``OPENBLAS_CORETYPE=BLAS_CORETYPE`` (unless set) in this process's environment, which
+    its children inherit; OpenBLAS reads it when it loads, so it acts on the copies that load
+    later. Warns once where one has loaded already (numpy imported first). Returns whether it
+    set the variable. Called when this module is imported."""
+    if "OPENBLAS_CORETYPE" in os.environ or not runs_blas_coretype():  # a set choice (a worker's) stays
+        return False
+    loaded = _loaded_openblas()
+    if loaded:
+        warnings.warn(
+            f"jaxhumanoid: OpenBLAS was loaded before jaxhumanoid ({', '.join(loaded)}: numpy imported first), "
+            f"so it keeps this CPU's own kernels, not {BLAS_CORETYPE}'s, and iteration counts can differ from "
+            f"the documented ones; set OPENBLAS_CORETYPE={BLAS_CORETYPE} before Python starts",
+            RuntimeWarning,
+            stacklevel=3,
+        )
     os.environ["OPENBLAS_CORETYPE"] = BLAS_CORETYPE
+    return True
+
+
+pin_blas_kernels()
 
 import jax  # noqa: E402  (after the BLAS kernels are chosen: jax loads numpy)
 
@@ -78,7 +113,7 @@ def blas_kernels() -> dict[str, str]:
 
 def environment() -> dict:
     """What a result's bits depend on besides its inputs: the package versions, the CPU, the BLAS
-    kernels in use and the thread settings (``report.json``'s ``environment``)."""
+    kernels and IPOPT libraries in use and the thread settings (``report.json``'s ``environment``)."""
     versions: dict[str, str | None] = {}
     for name in _PACKAGES:
         try:
@@ -91,10 +126,22 @@ def environment() -> dict:
         "machine": platform.machine(),
         "cpu": _cpu_model(),
         "blas_kernels": blas_kernels(),
+        "ipopt_libraries": _loaded_libraries("libipopt"),
         "OPENBLAS_CORETYPE": os.environ.get("OPENBLAS_CORETYPE"),
         "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS"),
         "platform": sys.platform,
     }
+
+
+def _loaded_libraries(stem: str) -> list[str]:
+    """The files of the loaded libraries whose name starts with ``stem`` (e.g. the IPOPT a solve
+    ran), from /proc/self/maps; empty where it cannot be read."""
+    try:
+        maps = pathlib.Path("/proc/self/maps").read_text()
+    except OSError:
+        return []
+    paths = {f[5] for f in (line.split(maxsplit=5) for line in maps.splitlines()) if len(f) == 6}
+    return sorted(p for p in paths if pathlib.Path(p).name.startswith(stem))
 
 
 def _cpu_model() -> str:

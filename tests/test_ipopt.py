@@ -2,6 +2,7 @@
 iterates as cyipopt's own binding of the same IPOPT build, warm start, errors."""
 
 import dataclasses
+import os
 import re
 
 import jax
@@ -10,6 +11,7 @@ import numpy as np
 import pytest
 
 import jaxhumanoid  # noqa: F401  (float64)
+from jaxhumanoid.solvers import ipopt_capi
 from jaxhumanoid.solvers.ipopt import solve_cyipopt_reference, solve_ipopt
 from jaxhumanoid.strategy.problem import build_problem
 from jaxhumanoid.validation import testproblems as tp
@@ -56,12 +58,24 @@ def test_same_iterates_as_cyipopt_on_the_humanoid():
     pytest.importorskip("cyipopt")
     pr = build_problem("T1", "A,F+C,1S", N=8)
     opts = {"max_iter": 25, "tol": 1e-8}
-    ours = solve_ipopt(pr.nlp, pr.p, pr.bounds, options=opts)
+    ours = solve_ipopt(pr.nlp, pr.p, pr.bounds, options=opts, library_path=ipopt_capi.wheel_library_path())
     x_ref, info, _ = solve_cyipopt_reference(pr.nlp, pr.p, pr.bounds, options=opts)
-    # one IPOPT build, the same callback values: the iterates agree to round-off
+    # one IPOPT build (the cyipopt wheel's), the same callback values: the iterates agree to round-off
     np.testing.assert_allclose(ours.x, x_ref, rtol=0, atol=1e-9)
     np.testing.assert_allclose(ours.lam_g, info["mult_g"], rtol=0, atol=1e-6 * max(1.0, np.abs(info["mult_g"]).max()))
     assert abs(ours.objective - info["obj_val"]) <= 1e-9 * max(1.0, abs(info["obj_val"]))
+
+
+def test_programs_compiled_ahead_are_the_ones_the_solve_runs():
+    pr = build_problem("T1", "A,F+C,1S", N=6)
+    pr.nlp.precompile(pr.bounds.x0, pr.p).result()
+    ev = pr.nlp.jitted()
+    sizes = [fn._cache_size() for fn in (ev.fg, ev.grad_jac, ev.hess)]
+    assert sizes == [1, 1, 1]
+    solve_ipopt(pr.nlp, pr.p, pr.bounds, options={"max_iter": 3})
+    assert [fn._cache_size() for fn in (ev.fg, ev.grad_jac, ev.hess)] == sizes  # no other signature traced
+    with pytest.raises(ValueError):  # an error in a program comes back through the future
+        pr.nlp.precompile(np.zeros(pr.nlp.n + 1), pr.p).result()
 
 
 def test_warm_start_from_multipliers_converges_at_once():
@@ -85,6 +99,21 @@ def test_warm_start_from_multipliers_converges_at_once():
     np.testing.assert_allclose(warm.x, cold.x, atol=1e-8)
 
 
+def test_both_ipopt_libraries_solve_to_one_optimum():
+    # the casadi wheel's IPOPT (the default where present) and the cyipopt wheel's
+    casadi_lib = ipopt_capi.casadi_library_path()
+    if casadi_lib is None:
+        pytest.skip("the casadi wheel ships no IPOPT library here")
+    assert ipopt_capi.default_library_path() == casadi_lib or "JAXHUMANOID_IPOPT_LIBRARY" in os.environ
+    nlp, bounds, p, expected = tp.hs071()
+    runs = [solve_ipopt(nlp, p, bounds, options={"tol": 1e-10}, library_path=lib) for lib in (casadi_lib, None)]
+    runs.append(solve_ipopt(nlp, p, bounds, options={"tol": 1e-10}, library_path=ipopt_capi.wheel_library_path()))
+    for r in runs:
+        assert r.success
+        np.testing.assert_allclose(r.x, runs[0].x, atol=1e-8)
+    assert "3.14.19" in runs[0].log and "3.14.11" in runs[2].log  # the banner names each build
+
+
 def test_errors_are_clear():
     nlp, bounds, p, _ = tp.hs071()
     with pytest.raises(ValueError, match="options\\['no_such_option'\\]"):
@@ -93,6 +122,23 @@ def test_errors_are_clear():
         solve_ipopt(nlp, p, bounds, options={"tol": -1.0})
     with pytest.raises(ValueError, match="x0: expected shape"):
         solve_ipopt(nlp, p, bounds, x0=np.zeros(3))
+
+
+def test_integral_values_of_number_options_are_taken():
+    # a command line or a TOML file gives mu_init=1 and tol=1 as integers; IPOPT's integer setter
+    # rejects number options, so they must reach its number setter
+    nlp, bounds, p, _ = tp.hs071()
+    opts = {"mu_init": 1, "tol": 1, "acceptable_tol": 10}
+    ipopt_capi.check_options(opts)
+    res = solve_ipopt(nlp, p, bounds, options={**opts, "tol": 1e-8})
+    assert res.success
+    loose = solve_ipopt(nlp, p, bounds, options=opts)
+    assert loose.iterations < res.iterations  # tol=1 was set, not ignored
+    # integer options still go to the integer setter, with their range checked
+    capped = solve_ipopt(nlp, p, bounds, options={"max_iter": 1, "mu_init": 1})
+    assert capped.status == "Maximum_Iterations_Exceeded" and capped.iterations == 1
+    with pytest.raises(ValueError, match="options\\['max_iter'\\]"):
+        ipopt_capi.check_options({"max_iter": -1})
 
 
 def test_an_exception_in_a_callback_is_raised_not_reported_as_a_status():

@@ -32,7 +32,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxhumanoid.derivatives import colouring, compressed, sparsity
+from jaxhumanoid.derivatives import colouring, compressed, jaxpr_numpy, sparsity
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -157,8 +157,10 @@ def local_derivatives(
         jac_r = compressed.stage_jacobian(con_r, jr, jc, nr, colouring=jcol, args_axes=(None,))
         n_jac_colours = colouring.num_colours(jcol)
     else:
-        r = jnp.asarray(np.random.default_rng(seed).normal(size=nr))
-        a, b = groups.con(tuple(r[i] for i in groups.index), p_example), con_r(r, p_example)
+        r = np.random.default_rng(seed).normal(size=nr)
+        a, b = jaxpr_numpy.evaluator(
+            lambda r, p: (groups.con(tuple(r[i] for i in groups.index), p), con_r(r, p)), r, p_example
+        )(r, p_example)
         if not np.allclose(a, b, rtol=1e-12, atol=1e-12):
             raise ValueError("groups.con: differs from con_r at a random point; zs[g] must be r[index[g]]")
         jac_r, pos, n_jac_colours = _grouped_sweeps(groups.con, groups, jr, jc, n_con, (None,))

@@ -31,6 +31,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxhumanoid.derivatives import jaxpr_numpy
+
 
 def sample_points(n: int, num_points: int = 3, center=0.0, scale=0.1, seed: int = 0, points=None) -> np.ndarray:
     """Random points center + scale * u with u_i = +-U(0.5, 1.5), shape (num_points, n).
@@ -57,19 +59,20 @@ def sample_points(n: int, num_points: int = 3, center=0.0, scale=0.1, seed: int 
 
 def _union_nonzeros(fun, n: int, arg_sets, draw, shape_ok, expected: str, derivative, name: str) -> np.ndarray:
     """Union of the nonzeros of the dense ``derivative`` of x -> fun(x, *args) over the sample
-    points ``draw(k)`` of every argument tuple ``arg_sets[k]``. The derivative is traced and
-    compiled once, with the arguments as jit arguments, however many tuples there are."""
+    points ``draw(k)`` of every argument tuple ``arg_sets[k]``. The derivative is traced once and
+    evaluated by numpy (``jaxpr_numpy``: no compilation), or compiled once where it uses a
+    primitive that interpreter lacks."""
     arg_sets = [tuple(a) for a in arg_sets]
     if not arg_sets:
         raise ValueError("arg_sets: expected at least one tuple of extra arguments")
     out = jax.eval_shape(lambda x: fun(x, *arg_sets[0]), jax.ShapeDtypeStruct((n,), jnp.float64))
     if not hasattr(out, "shape") or not shape_ok(out.shape):
         raise ValueError(f"fun: expected {expected}, got output {out}")
-    dense = jax.jit(derivative(fun))
+    dense = jaxpr_numpy.cached_evaluator(derivative(fun), fallback=jax.jit)
     mask = None
     for k, args in enumerate(arg_sets):
         for x in draw(k):
-            d = np.asarray(dense(jnp.asarray(x), *args))
+            d = np.asarray(dense(np.asarray(x, dtype=np.float64), *args))
             if not np.all(np.isfinite(d)):
                 raise ValueError(f"fun: {name} is not finite at a sample point; choose points/center/scale where it is")
             mask = d != 0 if mask is None else mask | (d != 0)

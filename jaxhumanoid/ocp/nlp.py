@@ -24,6 +24,7 @@ the sensitivities call these, so one NLP is traced once however many modules eva
 
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
 from collections.abc import Callable
 from typing import Any, NamedTuple
@@ -31,11 +32,18 @@ from typing import Any, NamedTuple
 import jax
 import numpy as np
 
+# XLA's CPU compiler options for the NLP's programs (jaxlib is pinned: the names are its). Without
+# the MLIR fusion emitters they compile in two thirds of the time, to the same bits and speed;
+# without YNNPACK's fusions (its reductions and dots) an IPOPT iteration's evaluations take a
+# quarter less time (scripts/bench_iteration.py).
+COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False, "xla_cpu_experimental_ynn_fusion_type": ""}
+
 
 class JittedNLP(NamedTuple):
     """The functions of one NLP under ``jax.jit``. ``fg`` and ``grad_jac`` fuse the pairs a
     solver asks for at the same point (IPOPT: f and g at every trial point, grad f and the
-    Jacobian at every accepted one) into one dispatch each."""
+    Jacobian at every accepted one) into one dispatch each; the single functions are parts of
+    them, so that an NLP compiles three programs."""
 
     fg: Callable[[Any, Any], Any]  # (x, p) -> (f, g)
     grad_jac: Callable[[Any, Any], Any]  # (x, p) -> (grad, jac_values)
@@ -69,16 +77,32 @@ class NLP:
     def jitted(self) -> JittedNLP:
         """The NLP's functions compiled once for this NLP (kept in ``cache``)."""
         if "jitted" not in self.cache:
+            fg = jax.jit(lambda x, p: (self.f(x, p), self.g(x, p)), compiler_options=COMPILER_OPTIONS)
+            grad_jac = jax.jit(lambda x, p: (self.grad(x, p), self.jac_values(x, p)), compiler_options=COMPILER_OPTIONS)
             self.cache["jitted"] = JittedNLP(
-                fg=jax.jit(lambda x, p: (self.f(x, p), self.g(x, p))),
-                grad_jac=jax.jit(lambda x, p: (self.grad(x, p), self.jac_values(x, p))),
-                hess=jax.jit(self.hess_values),
-                f=jax.jit(self.f),
-                g=jax.jit(self.g),
-                grad=jax.jit(self.grad),
-                jac_values=jax.jit(self.jac_values),
+                fg=fg,
+                grad_jac=grad_jac,
+                hess=jax.jit(self.hess_values, compiler_options=COMPILER_OPTIONS),
+                f=lambda x, p: fg(x, p)[0],
+                g=lambda x, p: fg(x, p)[1],
+                grad=lambda x, p: grad_jac(x, p)[0],
+                jac_values=lambda x, p: grad_jac(x, p)[1],
             )
         return self.cache["jitted"]
+
+    def precompile(self, x, p) -> concurrent.futures.Future:
+        """Compile the three programs of ``jitted()`` for arguments shaped like x (n,) and p, in
+        background threads (XLA compiles outside the GIL, so they share the cores with the caller
+        and with each other). Returns a future that is done when all three are; calls at these
+        shapes then run at once, e.g. a later stage's programs compiled while an earlier stage
+        solves."""
+        ev = self.jitted()
+        calls = [(ev.fg, (x, p)), (ev.grad_jac, (x, p)), (ev.hess, (x, np.ones(self.m), 1.0, p))]
+        pool = concurrent.futures.ThreadPoolExecutor(len(calls) + 1)
+        parts = [pool.submit(_run, fn, args) for fn, args in calls]
+        done = pool.submit(_wait, parts)  # raises the first error of the three
+        pool.shutdown(wait=False)
+        return done
 
     @property
     def nnz_jac(self) -> int:
@@ -87,6 +111,15 @@ class NLP:
     @property
     def nnz_hess(self) -> int:
         return int(self.hess_rows.size)
+
+
+def _run(fn, args):
+    return jax.block_until_ready(fn(*args))
+
+
+def _wait(futures) -> None:
+    for f in futures:
+        f.result()
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,10 +1,11 @@
-"""IPOPT (the library of the pinned cyipopt wheel), with exact sparse Jacobian and Hessian from JAX.
+"""IPOPT with exact sparse Jacobian and Hessian from JAX.
 
 IPOPT is driven through its C interface (``ipopt_capi``), which copies derivative values with one
-memcpy instead of cyipopt's per-entry loop. IPOPT's options pass straight through
-(``options={"tol": 1e-9, ...}``). The iteration log is written by IPOPT to a file and read back
-into ``NLPResult.log`` (and echoed when ``verbose``); per-iteration statistics come from the
-intermediate callback.
+memcpy instead of cyipopt's per-entry loop. The library is the casadi wheel's (IPOPT 3.14.19 with
+METIS-ordered MUMPS; ``ipopt_capi.default_library_path``), or the cyipopt wheel's where asked.
+IPOPT's options pass straight through (``options={"tol": 1e-9, ...}``). The iteration log is
+written by IPOPT to a file and read back into ``NLPResult.log`` (and echoed when ``verbose``);
+per-iteration statistics come from the intermediate callback.
 
 ``NLPResult.iterations`` is IPOPT's own count, the "Number of Iterations" of its log. The
 intermediate callback is not a counter: IPOPT reports the iterate where its restoration phase
@@ -93,11 +94,11 @@ class _Callbacks:
         self.eval_time = 0.0
         self.eval_calls = 0
 
-    def warm_up(self, x, m: int) -> float:
-        """Compile every callback once; returns the compile time."""
+    def warm_up(self, nlp: NLP, x) -> float:
+        """Compile every callback, the three programs at once (``NLP.precompile``); returns the
+        wall time (none where they were compiled already)."""
         t0 = time.perf_counter()
-        for out in (*(fn(x, self.p) for fn in self._pairs.values()), self._hess(x, np.ones(m), 1.0, self.p)):
-            jax.block_until_ready(out)
+        nlp.precompile(x, self.p).result()
         return time.perf_counter() - t0
 
     def _timed(self, fn, *args):
@@ -177,14 +178,16 @@ def solve_ipopt(
     verbose: bool = False,
     warm: NLPResult | None = None,
     progress: IterationCallback | None = None,
+    library_path: str | None = None,
 ) -> NLPResult:
     """Solve ``nlp`` at parameters ``p`` with IPOPT (exact Hessian, MUMPS by default).
 
     ``options`` are IPOPT options, merged over ``DEFAULT_OPTIONS``; ``verbose`` echoes IPOPT's
     iteration log; ``warm`` (an earlier result) supplies starting multipliers (lam_g, z_l, z_u),
     which IPOPT uses with ``warm_start_init_point=yes``; ``progress`` is called with (iteration,
-    objective, primal infeasibility) from IPOPT's intermediate callback. The returned ``NLPResult.success`` is True
-    for Solve_Succeeded and Solved_To_Acceptable_Level only.
+    objective, primal infeasibility) from IPOPT's intermediate callback; ``library_path`` names the
+    IPOPT library (``ipopt_capi.default_library_path()`` if None). The returned ``NLPResult.success``
+    is True for Solve_Succeeded and Solved_To_Acceptable_Level only.
     """
     opts = dict(DEFAULT_OPTIONS)
     opts.update(options or {})
@@ -194,7 +197,7 @@ def solve_ipopt(
     if not np.all(np.isfinite(x0)):
         raise ValueError("x0: contains NaN or inf")
     cb = _Callbacks(nlp, p, progress)
-    compile_time = cb.warm_up(x0, nlp.m)
+    compile_time = cb.warm_up(nlp, x0)
     mults = {} if warm is None else {"mult_g": warm.lam_g, "mult_x_L": warm.z_l, "mult_x_U": warm.z_u}
     with captured_log(opts) as log:
         t0 = time.perf_counter()
@@ -211,6 +214,7 @@ def solve_ipopt(
             opts,
             x0,
             **mults,
+            library_path=library_path,
         )
         solve_time = time.perf_counter() - t0
     if verbose:
@@ -238,10 +242,12 @@ def solve_ipopt(
 
 
 def solve_cyipopt_reference(nlp: NLP, p, bounds: Bounds, x0=None, options: dict | None = None):
-    """The same solve through cyipopt's own Python binding (no fused calls, per-entry copies).
+    """The same solve through cyipopt's own Python binding (no fused calls, per-entry copies) and
+    its wheel's IPOPT library.
 
-    For cross-checks and benchmarks of ``solve_ipopt`` only: same IPOPT build, so the iterates
-    must agree to round-off. Returns (x, info, solve_time_s) as cyipopt gives them.
+    For cross-checks and benchmarks of ``solve_ipopt`` only: with ``library_path=
+    ipopt_capi.wheel_library_path()`` that is the same IPOPT build, so the iterates must agree to
+    round-off. Returns (x, info, solve_time_s) as cyipopt gives them.
     """
     jitted = nlp.jitted()
     f, g, grad, jac, hess = jitted.f, jitted.g, jitted.grad, jitted.jac_values, jitted.hess

@@ -1,7 +1,8 @@
 """IPOPT's C interface (``IpStdCInterface.h``, IPOPT 3.14) through ctypes.
 
-The IPOPT library is the one the pinned ``cyipopt-wheels`` package ships. cyipopt's own callbacks
-copy every Jacobian and Hessian value into IPOPT's arrays one Python object at a time, which costs
+The IPOPT library is the one the pinned casadi wheel ships (``default_library_path``; the pinned
+``cyipopt-wheels`` package's where casadi has none, or by choice). cyipopt's own callbacks copy
+every Jacobian and Hessian value into IPOPT's arrays one Python object at a time, which costs
 milliseconds per iteration at N = 100 (30k Jacobian and 19k Hessian nonzeros); here the values are
 written with one ``memcpy`` into a numpy view of IPOPT's buffer, and IPOPT's ``new_x`` flag tells
 the caller when x has changed.
@@ -54,8 +55,32 @@ EVAL_H = _cb(
 INTERMEDIATE = _cb(ctypes.c_bool, _idx, _idx, _num, _num, _num, _num, _num, _num, _num, _num, _idx, ctypes.c_void_p)
 
 
-def _library_path() -> str:
-    # the cyipopt wheel ships libipopt next to itself
+def default_library_path() -> str:
+    """The IPOPT library ``solve`` loads unless told: ``$JAXHUMANOID_IPOPT_LIBRARY``, else the
+    casadi wheel's (``casadi_library_path``), else the cyipopt wheel's (``wheel_library_path``)."""
+    return os.environ.get("JAXHUMANOID_IPOPT_LIBRARY") or casadi_library_path() or wheel_library_path()
+
+
+def casadi_library_path() -> str | None:
+    """The IPOPT library of the pinned casadi wheel (IPOPT 3.14.19, MUMPS with METIS, OpenBLAS on
+    one kernel set for every x86-64 CPU), None where it has none. Its KKT solves take 16-38 % less
+    time per iteration than the cyipopt wheel's on the reference posing's T1 and T4
+    (scripts/bench_iteration.py): MUMPS orders the KKT matrices with METIS there."""
+    try:
+        import casadi  # noqa: PLC0415  (only to find its folder)
+    except ImportError:
+        return None
+    folder = os.path.dirname(os.path.abspath(casadi.__file__))
+    for pattern in ("libipopt.so*", "libipopt*.dylib", "libipopt*.dll", "ipopt*.dll"):
+        found = sorted(glob.glob(os.path.join(folder, pattern)))
+        if found:
+            return found[0]
+    return None
+
+
+def wheel_library_path() -> str:
+    """The IPOPT library the pinned cyipopt wheel ships next to itself (IPOPT 3.14.11, MUMPS
+    without METIS): the one cyipopt's own binding runs (``ipopt.solve_cyipopt_reference``)."""
     site = os.path.dirname(os.path.dirname(os.path.abspath(cyipopt.__file__)))
     found = sorted(
         glob.glob(os.path.join(site, "cyipopt*.libs", "libipopt*.so*"))
@@ -69,9 +94,14 @@ def _library_path() -> str:
     return found[0]
 
 
-@lru_cache(maxsize=1)
-def library() -> ctypes.CDLL:
-    lib = ctypes.CDLL(_library_path())
+def library(path: str | None = None) -> ctypes.CDLL:
+    """The IPOPT library at ``path`` (default ``default_library_path()``), loaded once."""
+    return _load(os.path.realpath(path or default_library_path()))
+
+
+@lru_cache(maxsize=4)
+def _load(path: str) -> ctypes.CDLL:
+    lib = ctypes.CDLL(path)
     lib.CreateIpoptProblem.restype = ctypes.c_void_p
     lib.CreateIpoptProblem.argtypes = [
         _idx,
@@ -119,15 +149,19 @@ def _structure(rows, cols, r: np.ndarray, c: np.ndarray) -> None:
     np.ctypeslib.as_array(cols, shape=c.shape)[:] = c
 
 
-def add_option(handle, key: str, val) -> None:
-    """One IPOPT option; raises ValueError naming it when IPOPT rejects the key or value."""
-    lib = library()
+def add_option(handle, key: str, val, lib: ctypes.CDLL | None = None) -> None:
+    """One IPOPT option; raises ValueError naming it when IPOPT rejects the key or value.
+
+    IPOPT has one setter per option type and rejects a value given through another type's setter,
+    so an integral value (``tol=1``, ``mu_init=1`` from a command line or a TOML file) goes to the
+    number setter unless the integer setter takes it."""
+    lib = lib or library()
     k = key.encode()
     if isinstance(val, bool) or not isinstance(val, (int, float, np.integer, np.floating, str)):
         raise ValueError(f"options[{key!r}]: expected a str, int or float, got {val!r}")
     if isinstance(val, str):
         ok = lib.AddIpoptStrOption(handle, k, val.encode())
-    elif isinstance(val, (int, np.integer)):
+    elif isinstance(val, (int, np.integer)) and _integer_setter_takes(key, int(val)):
         ok = lib.AddIpoptIntOption(handle, k, int(val))
     else:
         ok = lib.AddIpoptNumOption(handle, k, float(val))
@@ -135,19 +169,43 @@ def add_option(handle, key: str, val) -> None:
         raise ValueError(f"options[{key!r}]: IPOPT rejected the option or its value {val!r} (see IPOPT's option list)")
 
 
+@lru_cache(maxsize=256)
+def _integer_setter_takes(key: str, val: int) -> bool:
+    """Whether IPOPT takes ``val`` for ``key`` through its integer setter, asked of a problem that
+    is never solved (an integer option in range: yes; a number option, or a value out of range,
+    or no such option: no)."""
+    lib = library()
+    handle = _probe_problem()
+    try:
+        with _silenced_stdout():  # IPOPT prints its own complaint about the wrong setter
+            return bool(lib.AddIpoptIntOption(handle, key.encode(), int(val)))
+    finally:
+        lib.FreeIpoptProblem(handle)
+
+
 def _no_eval(*_args):
     return False
+
+
+_NO_EVAL = (EVAL_F(_no_eval), EVAL_G(_no_eval), EVAL_GRAD_F(_no_eval), EVAL_JAC_G(_no_eval), EVAL_H(_no_eval))
+
+
+def _probe_problem():
+    """A one-variable problem that is never solved, to give options to (free it with
+    ``FreeIpoptProblem``)."""
+    lib = library()
+    one = np.zeros(1)
+    handle = lib.CreateIpoptProblem(1, _ptr(one), _ptr(one), 0, _ptr(one), _ptr(one), 0, 0, 0, *_NO_EVAL)
+    if not handle:
+        raise RuntimeError("IPOPT could not create the problem (CreateIpoptProblem returned NULL)")
+    return handle
 
 
 def check_options(options: dict) -> None:
     """Raise ValueError naming the first option whose name or value IPOPT rejects, before any
     problem is built: the options are given to a one-variable problem that is never solved."""
     lib = library()
-    one = np.zeros(1)
-    cbs = (EVAL_F(_no_eval), EVAL_G(_no_eval), EVAL_GRAD_F(_no_eval), EVAL_JAC_G(_no_eval), EVAL_H(_no_eval))
-    handle = lib.CreateIpoptProblem(1, _ptr(one), _ptr(one), 0, _ptr(one), _ptr(one), 0, 0, 0, *cbs)
-    if not handle:
-        raise RuntimeError("IPOPT could not create the problem (CreateIpoptProblem returned NULL)")
+    handle = _probe_problem()
     try:
         with _silenced_stdout():  # IPOPT prints its own complaint; the ValueError says it once
             for key, val in options.items():
@@ -186,9 +244,11 @@ def solve(
     mult_g=None,
     mult_x_L=None,
     mult_x_U=None,
+    library_path: str | None = None,
 ):
-    """Run ``IpoptSolve``; returns (status code, x, g, obj, mult_g, mult_x_L, mult_x_U)."""
-    lib = library()
+    """Run ``IpoptSolve`` of the IPOPT library at ``library_path`` (default
+    ``default_library_path()``); returns (status code, x, g, obj, mult_g, mult_x_L, mult_x_U)."""
+    lib = library(library_path)
     jr, jc = (np.ascontiguousarray(a, dtype=np.int32) for a in jac_structure)
     hr, hc = (np.ascontiguousarray(a, dtype=np.int32) for a in hess_structure)
     nnz_j, nnz_h = jr.size, hr.size
@@ -258,7 +318,7 @@ def solve(
     inter = INTERMEDIATE(intermediate)
     try:
         for key, val in options.items():
-            add_option(handle, key, val)
+            add_option(handle, key, val, lib)
         lib.SetIntermediateCallback(handle, inter)
         x = np.array(x0, dtype=float)
         g, obj = np.zeros(m), np.zeros(1)
