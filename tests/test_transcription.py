@@ -82,14 +82,15 @@ def test_sparse_derivatives_equal_dense_and_patterns_complete(task, scheme, pseu
 
 def test_grouped_sweeps_agree_with_joint_and_reject_bad_names():
     pr = build_problem("T1", "A,F+C,1S", N=8)
-    grouped = with_sweeps(pr, "grouped").nlp
-    assert grouped is not pr.nlp and with_sweeps(pr, "joint").nlp is pr.nlp
-    assert np.array_equal(grouped.jac_rows, pr.nlp.jac_rows) and np.array_equal(grouped.hess_cols, pr.nlp.hess_cols)
+    joint = with_sweeps(pr, "joint").nlp
+    assert joint is not pr.nlp and with_sweeps(pr, "grouped").nlp is pr.nlp  # grouped: the default
+    grouped = pr.nlp
+    assert np.array_equal(grouped.jac_rows, joint.jac_rows) and np.array_equal(grouped.hess_cols, joint.hess_cols)
     rng = np.random.default_rng(2)
     x, lam = pr.bounds.x0 + 0.05 * rng.normal(size=pr.nlp.n), rng.normal(size=pr.nlp.m)
     for a, b in (
-        (jax.jit(grouped.jac_values)(x, pr.p), jax.jit(pr.nlp.jac_values)(x, pr.p)),
-        (jax.jit(grouped.hess_values)(x, lam, 1.0, pr.p), jax.jit(pr.nlp.hess_values)(x, lam, 1.0, pr.p)),
+        (jax.jit(grouped.jac_values)(x, pr.p), jax.jit(joint.jac_values)(x, pr.p)),
+        (jax.jit(grouped.hess_values)(x, lam, 1.0, pr.p), jax.jit(joint.hess_values)(x, lam, 1.0, pr.p)),
     ):
         assert np.max(np.abs(np.asarray(a) - np.asarray(b))) <= 1e-13 * np.max(np.abs(np.asarray(b)))
     idx = np.sort(np.concatenate(tr.midpoint_groups(pr.layout)))

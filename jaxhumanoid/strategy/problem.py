@@ -8,7 +8,7 @@ import functools
 import jax.numpy as jnp
 import numpy as np
 
-from jaxhumanoid.derivatives.stagewise import stagewise_nlp
+from jaxhumanoid.derivatives.stagewise import DEFAULT_SWEEPS, stagewise_nlp
 from jaxhumanoid.model.foot import FootMargin
 from jaxhumanoid.model.params import ContactParams, FootParams, PlanarChain
 from jaxhumanoid.ocp import static_path
@@ -129,7 +129,7 @@ def build_problem(
         if q_start.shape != (n,):
             raise ValueError(f"q_start: expected shape ({n},), got {q_start.shape}")
         p = dataclasses.replace(p, q_start=q_start)
-    nlp = _cached_nlp(layout, "joint")
+    nlp = _cached_nlp(layout, DEFAULT_SWEEPS)
     lo, hi = _bounds_full(task, layout, p)
     free = layout.free_mask()
     kinds = np.tile(layout.constraint_kinds(), layout.N)
@@ -176,7 +176,7 @@ def with_guess(problem: Problem, guess: str) -> Problem:
 
 def with_sweeps(problem: Problem, sweeps: str) -> Problem:
     """``problem`` with its derivatives swept as ``sweeps`` says (``derivatives.stagewise.SWEEPS``:
-    ``"joint"``, the default, or ``"grouped"``, the same values to round-off in fewer operations);
+    ``"grouped"``, the default, or ``"joint"``, the same values to round-off in more operations);
     ``stagewise_nlp`` rejects other names before any work."""
     return dataclasses.replace(problem, nlp=_cached_nlp(problem.layout, sweeps))
 
