@@ -296,3 +296,24 @@ def test_relaxed_stage_problem_steps_towards_the_nominal_law_where_the_relaxed_l
     # stage 1 and the relaxed-law dynamic solve start from the one posture seated for law 1
     np.testing.assert_array_equal(starts[0], starts[1])
     np.testing.assert_allclose(starts[0], got.p.q_start, atol=1e-5)  # solve seats the start first (5e-7 rad)
+
+
+def test_stage_two_start_takes_velocities_from_the_interpolated_positions():
+    final = build_problem("T1", "A,F+C,2S", N=20)
+    first = strat.stage_one_problem("T1", "A,F+C,2S", final, 8)
+    sl = final.layout.stage_slices()
+    # a stage-1 point whose node velocities alternate about the motion's, as (6a) allows in (8)
+    Z1 = np.array(first.full(first.bounds.x0))
+    t1 = np.linspace(0.0, float(final.p.T), 9)
+    Z1[:, sl["q"]] = np.sin(t1)[:, None] * np.arange(1.0, 6.0)
+    Z1[1:, sl["qd"]] = np.cos(t1[1:])[:, None] * np.arange(1.0, 6.0) + 3.0 * (-1.0) ** np.arange(8)[:, None]
+    x0, Zf = strat.stage_two_start(Z1, final)
+    plain = strat.interpolate_full(Z1, float(final.p.T), final.layout)
+    h = float(final.p.T) / 20
+    q = Zf[:, sl["q"]]
+    assert np.array_equal(q, plain[:, sl["q"]]) and np.array_equal(Zf[:, sl["u"]], plain[:, sl["u"]])
+    np.testing.assert_allclose(Zf[1:-1, sl["qd"]], (q[2:] - q[:-2]) / (2 * h), atol=1e-12)
+    # the alternation is gone: the start's velocities stay within the motion's range
+    assert np.max(np.abs(Zf[:, sl["qd"]])) < np.max(np.abs(plain[:, sl["qd"]])) - 2.0
+    assert np.all(x0 >= final.bounds.xl) and np.all(x0 <= final.bounds.xu)
+    assert np.array_equal(x0, np.clip(tr.free_from_full(final.layout, Zf), final.bounds.xl, final.bounds.xu))

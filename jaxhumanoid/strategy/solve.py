@@ -194,6 +194,27 @@ def interpolate_full(Z_coarse: np.ndarray, T: float, layout_fine: tr.Layout) -> 
     return Z
 
 
+def stage_two_start(Z_coarse: np.ndarray, final: Problem) -> tuple[np.ndarray, np.ndarray]:
+    """The start of the dynamic stages from stage 1's solution ``Z_coarse`` (N1 + 1, s): returns
+    (x0 (n,), Zf (N + 1, s)) on ``final``'s grid.
+
+    Positions, torques and forces are interpolated linearly (``interpolate_full``, Sec. III-A.3).
+    The velocities are not: in the pseudo-static model (8), (6a) ties only the mean of two
+    neighbouring node velocities to the positions, so stage 1's node velocities alternate from
+    node to node (the acceleration cost damps, but does not remove, that mode), and their
+    differences would read as large accelerations in (6b) and in the foot reaction of (5). They are
+    taken from the interpolated positions instead, qd_k = (q_{k+1} - q_{k-1}) / (2h) (one-sided at
+    the ends; x0 leaves out the fixed entries, qd_0 = 0 among them, and is clipped to ``final``'s
+    bounds).
+    """
+    layout, T = final.layout, float(final.p.T)
+    Zf = interpolate_full(Z_coarse, T, layout)
+    sl = layout.stage_slices()
+    Zf[:, sl["qd"]] = np.gradient(Zf[:, sl["q"]], T / layout.N, axis=0)
+    x0 = np.clip(np.asarray(tr.free_from_full(layout, Zf)), final.bounds.xl, final.bounds.xu)
+    return x0, Zf
+
+
 def violation_at(problem: Problem, x) -> float:
     """The largest constraint or bound violation of ``problem`` at x (n,), in its own units."""
     x = np.asarray(x, dtype=float)
@@ -586,9 +607,8 @@ def solve(
             task, scheme, first, relaxed, N1, stage1, relaxed.p.contact, guess, verbose, progress, scaling
         )
         stages.append(dataclasses.replace(stats1, law_step=law_step))
-        Zf = interpolate_full(Z1, T, final.layout)
+        x0, Zf = stage_two_start(Z1, final)
         warm = {"t": np.linspace(0.0, T, N + 1), "q": Zf[:, final.layout.stage_slices()["q"]]}
-        x0 = np.clip(np.asarray(tr.free_from_full(final.layout, Zf)), final.bounds.xl, final.bounds.xu)
     stage2 = {**(STAGE2_DEFAULTS if scheme.stages == 2 else {}), **(options or {}), **(stage2_options or {})}
     if scheme.stages == 2 and handover == "continuation":
         later = law_path(relaxed.p.contact, final.p.contact, continuation_steps)[1:]
