@@ -1,4 +1,4 @@
-"""Command line: ``jaxhumanoid solve | table2 | tasks | posture | animate | track | check | sweep``
+"""Command line: ``jaxhumanoid solve | table2 | tasks | posture | animate | track | check | sweep | bench``
 (also ``python -m jaxhumanoid``).
 
 Exit status: 0 done, 1 failed (a solve that did not converge, or an error raised while working,
@@ -25,6 +25,7 @@ from jaxhumanoid.ocp.scheme import TABLE2_SCHEMES, parse_scheme
 from jaxhumanoid.ocp.tasks import NO_FORCE_LIMIT, TASKS, get_task, with_force_limit
 from jaxhumanoid.outputs import plots, timeline, tracking_plots
 from jaxhumanoid.outputs.animation import animate
+from jaxhumanoid.outputs.bench_command import add_bench_parser
 from jaxhumanoid.outputs.exits import RunFailed, working
 from jaxhumanoid.progress import IterationLine, Progress
 from jaxhumanoid.runtime import enable_compilation_cache, writable_dir
@@ -594,6 +595,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--out", default=None, help="also write the rows (with --sensitivities: and the full results) as JSON"
     )
     p.set_defaults(func=cmd_check)
+
+    add_bench_parser(sub)
 
     p = sub.add_parser("sweep", help="run a study: every case of a TOML spec, on worker processes or a cluster")
     p.add_argument("spec", help="the study's TOML file (examples/sweep_small.toml; format in studies/spec.py)")

@@ -110,8 +110,8 @@ def stage2_warm_start(task: str) -> tuple[Problem, np.ndarray]:
 
 
 def git_state(root: pathlib.Path | str = REPO) -> dict[str, Any]:
-    """The commit checked out at ``root`` and whether tracked files differ from it (``dirty``);
-    ``None`` for both outside a git work tree."""
+    """The commit checked out at ``root``, its ``git describe`` and whether tracked files differ
+    from it (``dirty``); ``None`` for each outside a git work tree."""
 
     def git(*args: str) -> str | None:
         try:
@@ -122,7 +122,8 @@ def git_state(root: pathlib.Path | str = REPO) -> dict[str, Any]:
 
     commit = git("rev-parse", "HEAD")
     status = git("status", "--porcelain", "--untracked-files=no") if commit else None
-    return {"commit": commit, "dirty": None if status is None else bool(status)}
+    describe = git("describe", "--always", "--tags", "--dirty") if commit else None
+    return {"commit": commit, "describe": describe, "dirty": None if status is None else bool(status)}
 
 
 def stamp(results: Mapping[str, Any]) -> dict[str, Any]:
