@@ -440,20 +440,16 @@ def cmd_sweep(args) -> int:
     return 0 if summary["n_pending"] == 0 else 1
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="jaxhumanoid", description="Two-stage trajectory optimisation of a planar humanoid (JAX)."
-    )
-    parser.add_argument("--no-cache", action="store_true", help="do not use the persistent JAX compilation cache")
-    sub = parser.add_subparsers(dest="command", required=True)
+def _common(p, grid: bool = True) -> None:
+    """The options that several subcommands share."""
+    if grid:
+        p.add_argument("--N", type=int, default=100, help="number of intervals of the (final) grid (default 100)")
+        p.add_argument("--solver", default="ipopt", choices=["ipopt", "ipm", "casadi"])
+    p.add_argument("--ipopt-option", action="append", metavar="KEY=VALUE", help="IPOPT option, repeatable")
+    p.add_argument("--quiet", action="store_true")
 
-    def common(p, grid=True):
-        if grid:
-            p.add_argument("--N", type=int, default=100, help="number of intervals of the (final) grid (default 100)")
-            p.add_argument("--solver", default="ipopt", choices=["ipopt", "ipm", "casadi"])
-        p.add_argument("--ipopt-option", action="append", metavar="KEY=VALUE", help="IPOPT option, repeatable")
-        p.add_argument("--quiet", action="store_true")
 
+def _add_solve_parser(sub) -> None:
     p = sub.add_parser("solve", help="solve one task with one strategy")
     p.add_argument(
         "--task",
@@ -515,8 +511,46 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="out/solve")
     p.add_argument("--animate", action="store_true", help="also write animation.gif")
     p.add_argument("--verbose", action="store_true", help="print IPOPT's iteration log")
-    common(p, grid=False)
+    _common(p, grid=False)
     p.set_defaults(func=cmd_solve)
+
+
+def _add_check_parser(sub) -> None:
+    p = sub.add_parser("check", help="cross-validate JAX against CasADi and finite differences")
+    p.add_argument("--task", default=None, help="one task (default: all four)")
+    p.add_argument(
+        "--scheme",
+        default=None,
+        help="E,F | A,F | A,F+C (default: all three, plus the pseudo-static stage 1; A,F+C with --sensitivities)",
+    )
+    p.add_argument(
+        "--N", type=int, default=None, help=f"grid intervals (default 8; {SENSITIVITY_N} with --sensitivities)"
+    )
+    p.add_argument("--points", type=int, default=2, help="random points per case")
+    p.add_argument(
+        "--sensitivities",
+        action="store_true",
+        help="instead: KKT sensitivities of the optimal trajectory against finite differences of re-solves "
+        "(1S, every parameter group)",
+    )
+    p.add_argument("--eps", type=float, default=1e-5, help="finite-difference step of --sensitivities (relative)")
+    p.add_argument(
+        "--task-file", nargs="+", default=None, help="with --sensitivities: task files instead of the built-in tasks"
+    )
+    p.add_argument(
+        "--out", default=None, help="also write the rows (with --sensitivities: and the full results) as JSON"
+    )
+    p.set_defaults(func=cmd_check)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="jaxhumanoid", description="Two-stage trajectory optimisation of a planar humanoid (JAX)."
+    )
+    parser.add_argument("--no-cache", action="store_true", help="do not use the persistent JAX compilation cache")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    _add_solve_parser(sub)
 
     p = sub.add_parser("tasks", help="list the built-in tasks and the task files of a folder")
     p.add_argument("--dir", default="examples", help="folder of task files (default examples)")
@@ -532,7 +566,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="out/table2")
     p.add_argument("--tasks", nargs="*", help="T1..T4 (default all) or task files, e.g. examples/paper/T1.toml")
     p.add_argument("--schemes", nargs="*")
-    common(p)
+    _common(p)
     p.set_defaults(func=cmd_table2)
 
     p = sub.add_parser("animate", help="write an animation of a saved solution")
@@ -570,31 +604,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_track)
 
-    p = sub.add_parser("check", help="cross-validate JAX against CasADi and finite differences")
-    p.add_argument("--task", default=None, help="one task (default: all four)")
-    p.add_argument(
-        "--scheme",
-        default=None,
-        help="E,F | A,F | A,F+C (default: all three, plus the pseudo-static stage 1; A,F+C with --sensitivities)",
-    )
-    p.add_argument(
-        "--N", type=int, default=None, help=f"grid intervals (default 8; {SENSITIVITY_N} with --sensitivities)"
-    )
-    p.add_argument("--points", type=int, default=2, help="random points per case")
-    p.add_argument(
-        "--sensitivities",
-        action="store_true",
-        help="instead: KKT sensitivities of the optimal trajectory against finite differences of re-solves "
-        "(1S, every parameter group)",
-    )
-    p.add_argument("--eps", type=float, default=1e-5, help="finite-difference step of --sensitivities (relative)")
-    p.add_argument(
-        "--task-file", nargs="+", default=None, help="with --sensitivities: task files instead of the built-in tasks"
-    )
-    p.add_argument(
-        "--out", default=None, help="also write the rows (with --sensitivities: and the full results) as JSON"
-    )
-    p.set_defaults(func=cmd_check)
+    _add_check_parser(sub)
 
     add_bench_parser(sub)
 
