@@ -9,6 +9,8 @@ The public API (``import jaxhumanoid as jh``)::
     jh.find_equilibrium(model, q_guess, active)            # a start posture that keeps the foot steady
     jh.solve(task, scheme="A,F+C,2S", solver="ipopt", N=100, T=5.0, model=..., contact=..., weights=...)
     jh.load_task_file("task.toml")                         # body, task and settings from a TOML file
+    jh.build_problem("T1", "A,F+C,1S", N=20)               # one NLP of a task (its callbacks, bounds, guess)
+    jh.enable_compilation_cache()                          # JAX's persistent cache: a second process compiles less
 
 Importing the package turns on float64 in JAX (``jax_enable_x64``).
 """
@@ -16,7 +18,9 @@ Importing the package turns on float64 in JAX (``jax_enable_x64``).
 import jaxhumanoid.runtime  # noqa: F401  (float64 before any array is made)
 from jaxhumanoid.model.params import ContactParams, FootParams, PlanarChain
 from jaxhumanoid.ocp.tasks import Task, Weights, get_task
+from jaxhumanoid.runtime import enable_compilation_cache
 from jaxhumanoid.strategy.posture import Equilibrium, find_equilibrium
+from jaxhumanoid.strategy.problem import build_problem
 from jaxhumanoid.strategy.solution import Solution
 from jaxhumanoid.strategy.solve import solve
 from jaxhumanoid.strategy.taskfile import load_task_file
@@ -29,6 +33,8 @@ __all__ = [
     "Solution",
     "Task",
     "Weights",
+    "build_problem",
+    "enable_compilation_cache",
     "find_equilibrium",
     "get_task",
     "load_task_file",

@@ -18,11 +18,11 @@ import time
 import casadi as ca
 import jax
 import numpy as np
-from _bench import bench_task, time_fn, write
 
 import jaxhumanoid  # noqa: F401
 from jaxhumanoid.strategy.problem import build_problem
 from jaxhumanoid.strategy.solve import solve
+from jaxhumanoid.studies.bench import bench_task, time_fn, write_record
 from jaxhumanoid.validation.casadi_backend import build_casadi_nlp
 
 
@@ -104,7 +104,7 @@ def main():
                 f"{task:8s} {'+'.join(map(str, rec['ipopt']['iterations'])):>9s} {tj:7.2f} {'+'.join(map(str, rec['casadi']['iterations'])):>11s} {tc:9.2f} {tj / tc:6.2f}"
             )
             solves[task] = rec
-    write({"N": args.N, "evaluations": ev, "solves_2S": solves}, args.out)
+    write_record({"N": args.N, "evaluations": ev, "solves_2S": solves}, args.out)
 
 
 if __name__ == "__main__":

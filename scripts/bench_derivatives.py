@@ -17,10 +17,10 @@ import argparse
 
 import jax
 import numpy as np
-from _bench import alternate, time_fn, write
 
 import jaxhumanoid  # noqa: F401
 from jaxhumanoid.strategy.problem import build_problem, with_sweeps
+from jaxhumanoid.studies.bench import alternate, time_fn, write_record
 
 SCHEMES = ("E,F,1S", "A,F,1S", "A,F+C,1S")
 
@@ -94,7 +94,7 @@ def main():
             + " | ".join(f"{t[f'{a} {b}']:.2f}" for a in ("J", "H", "J+H") for b in ("joint", "grouped"))
             + f" | {c['ratio_grouped_over_joint']['J+H']:.2f} | {c['max_rel_diff']['J']:.0e}, {c['max_rel_diff']['H']:.0e} |"
         )
-    write({"N": args.N, "task": "T1", "results": results}, args.out)
+    write_record({"N": args.N, "task": "T1", "results": results}, args.out)
 
 
 if __name__ == "__main__":

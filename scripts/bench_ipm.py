@@ -39,7 +39,6 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
-from _bench import bench_task, write
 
 import jaxhumanoid  # noqa: F401
 from jaxhumanoid.derivatives.stagewise import SWEEPS
@@ -51,6 +50,7 @@ from jaxhumanoid.solvers.ipm import batch_solve_ipm, solve_ipm
 from jaxhumanoid.solvers.ipopt import solve_ipopt
 from jaxhumanoid.strategy import solve as strat
 from jaxhumanoid.strategy.problem import build_problem
+from jaxhumanoid.studies.bench import bench_task, write_record
 
 SCHEME = "A,F+C,2S"
 
@@ -275,7 +275,7 @@ def main():
                 f"IPM compile at N=100, {mode}: cold {r['cold_compile_s_median']:.1f} s ({each}), "
                 f"warm {r['warm_compile_s_median']:.1f} s"
             )
-        write({"scheme": SCHEME, "N": 100, "results": results}, args.out)
+        write_record({"scheme": SCHEME, "N": 100, "results": results}, args.out)
         return
 
     if not args.skip_per_iteration:
@@ -333,7 +333,7 @@ def main():
             f"vmap batch of {bt['batch']}: {bt['batch_s']:.1f} s vs sequential {bt['sequential_s']:.1f} s "
             f"(x{bt['speedup_batch_over_sequential']:.2f}); success {bt['batch_success']}/{bt['batch']}"
         )
-    write({"scheme": SCHEME, "N": 100, "results": results}, args.out)
+    write_record({"scheme": SCHEME, "N": 100, "results": results}, args.out)
 
 
 if __name__ == "__main__":

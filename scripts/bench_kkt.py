@@ -52,99 +52,14 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
-from _bench import time_fn, write
 
 import jaxhumanoid  # noqa: F401  (float64)
 from jaxhumanoid.solvers.ipm import kkt
+from jaxhumanoid.studies.bench import time_fn, write_record
+from jaxhumanoid.studies.kkt_data import backward_error, make_data, ruiz, sparse_kkt
 
 
 # ------------------------------------------------------------------------------------ data
-def make_data(path: str) -> dict:
-    """Hessian/Jacobian values and barrier diagonals at IPOPT iterates of T1's stage 2 (cached)."""
-    p = pathlib.Path(path)
-    if p.exists():
-        z = np.load(p, allow_pickle=False)
-        return {k: z[k] for k in z.files}
-    # the OCP and IPOPT stack is needed only to build the data once
-    from bench_ipm import stage1_problem
-
-    from jaxhumanoid.ocp import transcription as tr
-    from jaxhumanoid.solvers.ipopt import solve_ipopt
-    from jaxhumanoid.strategy import solve as strat
-
-    first, prob = stage1_problem("T1")
-    nlp, b = prob.nlp, prob.bounds
-    r1 = solve_ipopt(first.nlp, first.p, first.bounds, options=strat.STAGE1_DEFAULTS)
-    Zf = strat.interpolate_full(first.full(r1.x), float(prob.p.T), prob.layout)
-    x0 = np.clip(np.asarray(tr.free_from_full(prob.layout, Zf)), b.xl, b.xu)
-    out = {}
-    for label, iters in (("it3", 3), ("it30", 30), ("final", 3000)):
-        r = solve_ipopt(nlp, prob.p, b, x0=x0, options={**strat.STAGE2_DEFAULTS, "max_iter": iters})
-        x, lam = np.asarray(r.x), np.asarray(r.lam_g)
-        hv = np.asarray(nlp.hess_values(jnp.asarray(x), jnp.asarray(lam), 1.0, prob.p))
-        jv = np.asarray(nlp.jac_values(jnp.asarray(x), prob.p))
-        g = np.asarray(nlp.g(jnp.asarray(x), prob.p))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            sx = np.where(np.isfinite(b.xl), r.z_l / np.maximum(x - b.xl, 1e-20), 0.0) + np.where(
-                np.isfinite(b.xu), r.z_u / np.maximum(b.xu - x, 1e-20), 0.0
-            )
-            ineq = b.gl < b.gu
-            s = np.clip(g, b.gl, b.gu)
-            slack = np.minimum(
-                np.where(np.isfinite(b.gl), s - b.gl, np.inf), np.where(np.isfinite(b.gu), b.gu - s, np.inf)
-            )
-            sig_s = np.abs(lam) / np.maximum(slack, 1e-20)
-            dc = np.where(ineq, -1.0 / np.maximum(sig_s, 1e-20), 0.0)
-        out[f"{label}_hess"], out[f"{label}_jac"] = hv, jv
-        out[f"{label}_dx"], out[f"{label}_dc"] = sx, dc
-        out[f"{label}_iters"] = np.asarray(r.iterations)
-        print(
-            f"  {label}: IPOPT {r.iterations} iterations, {r.status}; Sigma_x in "
-            f"[{sx[sx > 0].min():.1e}, {sx.max():.1e}], -D_c in [{dc[dc < 0].min():.1e}, {dc[dc < 0].max():.1e}]"
-        )
-    rng = np.random.default_rng(0)
-    bounded = np.isfinite(b.xl) | np.isfinite(b.xu)
-    out["synth_hess"], out["synth_jac"] = out["final_hess"], out["final_jac"]
-    out["synth_dx"] = np.where(bounded, 10.0 ** rng.uniform(-8, 8, nlp.n), 0.0)
-    out["synth_dc"] = np.where(b.gl < b.gu, -(10.0 ** rng.uniform(-8, 8, nlp.m)), 0.0)
-    out["synth_iters"] = out["final_iters"]
-    for k, v in dict(
-        n=nlp.n,
-        m=nlp.m,
-        var_stage=nlp.var_stage,
-        con_stage=nlp.con_stage,
-        hess_rows=nlp.hess_rows,
-        hess_cols=nlp.hess_cols,
-        jac_rows=nlp.jac_rows,
-        jac_cols=nlp.jac_cols,
-    ).items():
-        out[k] = np.asarray(v)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    np.savez(p, **out)
-    return out
-
-
-def sparse_kkt(D, hv, jv, dx, dc):
-    n, m = int(D["n"]), int(D["m"])
-    hr, hc, jr, jc = D["hess_rows"], D["hess_cols"], D["jac_rows"], D["jac_cols"]
-    W = sp.coo_matrix((hv, (hr, hc)), shape=(n, n)).tocsr()
-    W = W + sp.triu(W.T, k=1) + sp.diags(dx)
-    J = sp.coo_matrix((jv, (jr, jc)), shape=(m, n)).tocsr()
-    return sp.bmat([[W, J.T], [J, sp.diags(dc)]]).tocsc()
-
-
-def ruiz(K, passes: int = 30):
-    """Symmetric Ruiz scaling s of a sparse symmetric K (numpy; independent of kkt.equilibrate):
-    S K S has rows of unit infinity norm. A diagonal congruence: inertia unchanged."""
-    K = sp.csr_matrix(K)
-    s = np.ones(K.shape[0])
-    for _ in range(passes):
-        Ks = sp.diags(s) @ K @ sp.diags(s)
-        rmax = np.asarray(abs(Ks).max(axis=1).todense()).ravel()
-        s = s / np.sqrt(np.where(rmax > 0, rmax, 1.0))
-    return s
-
-
 def dense_inertia(Ks, cache_dir: pathlib.Path):
     """Eigenvalues of the equilibrated K (dense eigvalsh, cached by hash): (number > tol, number
     < -tol, number within [-tol, tol], min |eig|), tol = n eps max|eig|: the signs of the
@@ -167,14 +82,6 @@ def inertia_consistent(ours, ref) -> bool:
     eigenvalue in the undetermined band |eig| <= n eps max|eig| counted as one of the three."""
     (p, n, z), (p0, n0, b) = ours, ref
     return p0 <= p <= p0 + b and n0 <= n <= n0 + b and z <= b and p + n + z == p0 + n0 + b
-
-
-def backward_error(Ks, s, u, r):
-    """Normwise backward error of u for K u = r, measured in the equilibrated system S K S."""
-    v = u / s
-    res = Ks @ v - s * r
-    knorm = abs(Ks).sum(axis=1).max()
-    return float(np.max(np.abs(res)) / (knorm * np.max(np.abs(v)) + np.max(np.abs(s * r))))
 
 
 def baseline_slow_blocks(K, st, A, B):
@@ -450,7 +357,7 @@ def main():
         results["interleaved"] = compare(D, modules[1][1], args.repeats, shifts)
     results["uptime_after"] = load_after = uptime()
     print(load_after)
-    write(results, args.out)
+    write_record(results, args.out)
 
 
 if __name__ == "__main__":

@@ -33,9 +33,6 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
-from _bench import write
-from bench_ipm import stage2_warm_start
-from bench_kkt import backward_error, make_data, ruiz, sparse_kkt
 
 import jaxhumanoid  # noqa: F401  (float64)
 from jaxhumanoid.runtime import enable_compilation_cache
@@ -43,6 +40,8 @@ from jaxhumanoid.solvers.ipm import kkt, solve_ipm
 from jaxhumanoid.solvers.ipm.kkt import condensed, elimination
 from jaxhumanoid.solvers.ipopt import solve_ipopt
 from jaxhumanoid.strategy import solve as strat
+from jaxhumanoid.studies.bench import stage2_warm_start, write_record
+from jaxhumanoid.studies.kkt_data import backward_error, make_data, ruiz, sparse_kkt
 
 METHODS = ("block_ldl", "condensed")
 
@@ -178,7 +177,7 @@ def main():
                 f"{task:5s} | {a['ms_per_iteration']:9.1f} {b['ms_per_iteration']:6.1f} {c['ms_per_iteration']:6.1f} | "
                 f"{a['status'][:24]:>24s} {a['iterations']:5d} | {b['status'][:24]:>24s} {b['iterations']:5d} | {r['objective_rel_diff']:8.1e}"
             )
-    write(res, args.out)
+    write_record(res, args.out)
 
 
 if __name__ == "__main__":

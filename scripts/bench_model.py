@@ -13,13 +13,13 @@ import argparse
 import jax
 import jax.numpy as jnp
 import numpy as np
-from _bench import time_fn, write
 
 import jaxhumanoid  # noqa: F401
 from jaxhumanoid.model import contact as ct
 from jaxhumanoid.model import dynamics as dyn
 from jaxhumanoid.model import foot as ft
 from jaxhumanoid.model.params import ContactParams, FootParams, PlanarChain
+from jaxhumanoid.studies.bench import time_fn, write_record
 
 
 def main():
@@ -54,7 +54,7 @@ def main():
     print(f"{'function (' + str(args.stages) + ' stages, vmap+jit)':50s} {'median':>10s} {'min':>10s} {'compile':>10s}")
     for k, v in res.items():
         print(f"{k:50s} {v['median_ms'] * 1e3:8.1f}us {v['min_ms'] * 1e3:8.1f}us {v['compile_ms']:8.0f}ms")
-    write({"stages": args.stages, "results": res}, args.out)
+    write_record({"stages": args.stages, "results": res}, args.out)
 
 
 if __name__ == "__main__":

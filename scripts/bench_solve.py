@@ -19,13 +19,13 @@ import os
 import re
 
 import numpy as np
-from _bench import bench_task, write
 
 import jaxhumanoid  # noqa: F401
 from jaxhumanoid.ocp.scheme import parse_scheme
 from jaxhumanoid.solvers.ipopt import solve_ipopt
 from jaxhumanoid.strategy import solve as strat
 from jaxhumanoid.strategy.problem import build_problem
+from jaxhumanoid.studies.bench import bench_task, write_record
 
 
 def _timing(log: str, key: str) -> float:
@@ -74,7 +74,7 @@ def main():
         print(
             f"{task:5s} {its[0]:4d}+{its[1]:<5d} {t1:9.2f} {t2:9.2f} {t1 + t2:8.2f} {per_it:10.1f} {share:10.0%} {linalg:12.0%}"
         )
-    write({"scheme": "A,F+C,2S", "N": 100, "results": results}, args.out)
+    write_record({"scheme": "A,F+C,2S", "N": 100, "results": results}, args.out)
 
 
 if __name__ == "__main__":

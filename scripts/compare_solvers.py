@@ -28,10 +28,10 @@ import platform
 import time
 
 import numpy as np
-from _bench import show_table
 
 import jaxhumanoid as jh
 from jaxhumanoid.strategy.taskfile import solve_kwargs
+from jaxhumanoid.studies.bench import show_table
 from jaxhumanoid.studies.compare import Outcome, agreement
 
 

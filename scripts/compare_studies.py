@@ -24,8 +24,8 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
-from _bench import show_table, write
 
+from jaxhumanoid.studies.bench import show_table, write_record
 from jaxhumanoid.studies.compare import OBJ_RTOL, agreement, outcome_of
 from jaxhumanoid.studies.table import latest_rows, read_table
 
@@ -145,7 +145,7 @@ def main():
     other = {k: {s: r for s, r in other[k].items() if s in solvers} for k in common}
     summaries = [study_summary(base), study_summary(other)]
     vs = versus(base, other)
-    write(
+    write_record(
         {
             "base": args.base,
             "other": args.other,

@@ -22,7 +22,6 @@ import pathlib
 import sys
 
 import numpy as np
-from bench_ipm import stage1_problem
 
 import jaxhumanoid  # noqa: F401  (x64)
 from jaxhumanoid.diff import sensitivity_table
@@ -30,6 +29,7 @@ from jaxhumanoid.ocp import transcription as tr
 from jaxhumanoid.solvers.ipm import solve_ipm
 from jaxhumanoid.solvers.ipopt import solve_ipopt
 from jaxhumanoid.strategy import solve as strat
+from jaxhumanoid.studies.bench import stage1_problem
 from jaxhumanoid.validation import testproblems as tp
 
 

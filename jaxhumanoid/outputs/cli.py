@@ -1,5 +1,9 @@
-"""Command line: ``jaxhumanoid solve | table2 | tasks | posture | animate | track | check | sweep``
-(also ``python -m jaxhumanoid``)."""
+"""Command line: ``jaxhumanoid solve | table2 | tasks | posture | animate | track | check | sweep | bench``
+(also ``python -m jaxhumanoid``).
+
+Exit status: 0 done, 1 failed (a solve that did not converge, or an error raised while working,
+``RunFailed``: files written so far stay), 2 bad input, rejected before any work.
+"""
 
 from __future__ import annotations
 
@@ -17,23 +21,29 @@ from jaxhumanoid.diff import sensitivity_table
 from jaxhumanoid.model.foot import FootMargin
 from jaxhumanoid.model.params import PlanarChain
 from jaxhumanoid.ocp.scaling import SCALINGS
-from jaxhumanoid.ocp.scheme import TABLE2_SCHEMES
+from jaxhumanoid.ocp.scheme import TABLE2_SCHEMES, parse_scheme
 from jaxhumanoid.ocp.tasks import NO_FORCE_LIMIT, TASKS, get_task, with_force_limit
 from jaxhumanoid.outputs import plots, timeline, tracking_plots
 from jaxhumanoid.outputs.animation import animate
+from jaxhumanoid.outputs.bench_command import add_bench_parser
+from jaxhumanoid.outputs.exits import RunFailed, working
 from jaxhumanoid.progress import IterationLine, Progress
 from jaxhumanoid.runtime import enable_compilation_cache, writable_dir
 from jaxhumanoid.solvers import ipopt_capi
 from jaxhumanoid.strategy.posture import find_equilibrium
 from jaxhumanoid.strategy.problem import DEFAULT_GUESS, GUESSES, Problem, problem_from_settings, stage_problem
 from jaxhumanoid.strategy.solution import Solution
-from jaxhumanoid.strategy.solve import DEFAULT_HANDOVER, DEFAULT_STAGE1_SOLVER, HANDOVERS, solve
+from jaxhumanoid.strategy.solve import DEFAULT_HANDOVER, DEFAULT_STAGE1_SOLVER, HANDOVERS, SOLVERS, solve
 from jaxhumanoid.strategy.taskfile import load_task_file, solve_kwargs, task_files
 from jaxhumanoid.studies import ENGINES, sweep
 from jaxhumanoid.tracking import montecarlo
 from jaxhumanoid.tracking.filter import SafetyFilter
 from jaxhumanoid.tracking.lqr import LQRWeights
 from jaxhumanoid.validation import checks
+
+# The grid of ``check --sensitivities``: the coarsest tried on which the 1S reference solve converges
+# on all four built-in tasks (at N = 15 and 20, T2's and T4's end infeasible).
+SENSITIVITY_N = 25
 
 # Table II of the paper: (iterations, seconds) per task and scheme; None = failed.
 PAPER_TABLE2: dict[str, dict[str, tuple[str, str] | None]] = {
@@ -140,6 +150,29 @@ def solve_arguments(args) -> dict:
     return {**base, **settings}
 
 
+def check_settings(kwargs: dict) -> None:
+    """The settings of a solve from the command line and a task file, checked before any work
+    (``solve`` checks them again): what they reject exits with status 2."""
+    get_task(kwargs["task"])
+    parse_scheme(kwargs["scheme"])
+    for name, allowed in (
+        ("solver", SOLVERS),
+        ("guess", GUESSES),
+        ("handover", HANDOVERS),
+        ("scaling", SCALINGS),
+        ("stage1_solver", (*SOLVERS, "same", None)),
+    ):
+        if name in kwargs and kwargs[name] not in allowed:
+            raise ValueError(f"{name}: {kwargs[name]!r} not in {allowed}")
+    for name in ("N", "N1"):
+        value = kwargs.get(name)
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 3):
+            raise ValueError(f"{name}: expected an integer number of intervals >= 3, got {value!r}")
+    T = kwargs.get("T", 5.0)
+    if isinstance(T, bool) or not isinstance(T, (int, float)) or not np.isfinite(T) or T <= 0:
+        raise ValueError(f"T: expected a positive horizon in seconds, got {T!r}")
+
+
 def force_limit_arg(text: str) -> float | str:
     """``--contact-force-limit``: MG body weights, or ``none``, which lifts a task's own limit."""
     if text.strip().lower() == NO_FORCE_LIMIT:
@@ -157,10 +190,12 @@ def cmd_solve(args) -> int:
     kwargs = solve_arguments(args)
     args.solver = kwargs["solver"]
     options = {**(kwargs.pop("options", None) or {}), **checked_options(args)}
+    check_settings(kwargs)
     t0 = time.perf_counter()
     line = IterationLine(quiet=args.quiet or args.verbose)
     try:
-        sol = solve(**kwargs, options=options or None, verbose=args.verbose, progress=line)
+        with working():
+            sol = solve(**kwargs, options=options or None, verbose=args.verbose, progress=line)
     finally:
         line.close()
     report = _save(sol, out)
@@ -196,7 +231,6 @@ def _table2_markdown(records) -> str:
 def cmd_table2(args) -> int:
     out = writable_dir(args.out)
     options = checked_options(args)
-    records = []
     tasks = args.tasks or ["T1", "T2", "T3", "T4"]
     schemes = args.schemes or list(TABLE2_SCHEMES)
     cells = [(t, s) for t in tasks for s in schemes]
@@ -204,6 +238,18 @@ def cmd_table2(args) -> int:
     # a task file brings its own body, law, weights and settings; the table's scheme, solver and N
     # replace the file's
     given = {t: solve_kwargs(t) for t in tasks}
+    for task, scheme in cells:
+        check_settings({**given[task], "scheme": scheme, "solver": args.solver, "N": args.N})
+    with working():
+        _table2_cells(args, out, given, cells, options, progress)
+    if not args.quiet:
+        print(_table2_markdown(json.loads((out / "table2.json").read_text())))
+    return 0
+
+
+def _table2_cells(args, out: pathlib.Path, given: dict, cells: list, options: dict, progress: Progress) -> None:
+    """Solve every cell, table2.json rewritten after each (a failure keeps the cells before it)."""
+    records: list[dict] = []
     for task, scheme in progress.iter(cells, label=lambda c: f"{c[0]} {c[1]}"):
         kw = given[task]
         merged = {**(kw.get("options") or {}), **options} or None
@@ -218,9 +264,6 @@ def cmd_table2(args) -> int:
         )
         (out / "table2.json").write_text(json.dumps(records, indent=2) + "\n")
     (out / "table2.md").write_text(_table2_markdown(records))
-    if not args.quiet:
-        print(_table2_markdown(records))
-    return 0
 
 
 def cmd_tasks(args) -> int:
@@ -264,7 +307,8 @@ def cmd_posture(args) -> int:
     q_min, q_max = task.joint_ranges(model)
     rows = {}
     for name, q in (("start", task.start), ("goal", task.goal)):
-        eq = find_equilibrium(model, q, task.active, contact=contact, foot=foot, q_min=q_min, q_max=q_max)
+        with working():
+            eq = find_equilibrium(model, q, task.active, contact=contact, foot=foot, q_min=q_min, q_max=q_max)
         rows[name] = _posture_row(name, eq)
     if args.out:
         pathlib.Path(args.out).write_text(json.dumps(rows, indent=2) + "\n")
@@ -277,7 +321,8 @@ def cmd_animate(args) -> int:
         what = "has no solution.npz" if src.is_dir() else "is not a directory"
         raise ValueError(f"dir: {str(src)!r} {what}; give a directory written by `jaxhumanoid solve`")
     sol = Solution.load(args.dir)
-    path = animate(sol, pathlib.Path(args.dir) / args.name)
+    with working():
+        path = animate(sol, pathlib.Path(args.dir) / args.name)
     if not args.quiet:
         print(f"wrote {path}")
     return 0
@@ -290,6 +335,20 @@ def cmd_track(args) -> int:
     out = writable_dir(args.out or args.dir)
     safety = SafetyFilter() if args.controller == "qp" else None
     progress = Progress(4 + (safety is not None) + (0 if args.no_figures else 1), quiet=args.quiet)
+    with working():
+        res = _track(args, sol, out, perturbation, weights, safety, progress)
+    if not args.quiet:
+        print(
+            f"{res.task}: {res.trials} trials, success open loop {res.open_loop_success_rate:.0%}, "
+            f"closed loop (TVLQR) {res.closed_loop_success_rate:.0%}"
+            + ("" if res.qp_filter_success_rate is None else f", TVLQR + QP filter {res.qp_filter_success_rate:.0%}")
+            + f" -> {out / 'tracking.json'}"
+        )
+    return 0
+
+
+def _track(args, sol, out: pathlib.Path, perturbation, weights, safety, progress: Progress):
+    """The Monte-Carlo trials of ``track``, saved, and their figures."""
     res = montecarlo.track(
         sol,
         trials=args.trials,
@@ -300,25 +359,18 @@ def cmd_track(args) -> int:
         progress=progress,
         safety=safety,
     )
-    path = res.save(out)
+    res.save(out)
     if not args.no_figures:
         progress.start("figure and animation")
         tracking_plots.plot_tracking(res, sol, path=out / "tracking.png")
         tracking_plots.animate_trial(res, sol, out / "tracking.gif")
         progress.finish()
-    if not args.quiet:
-        print(
-            f"{res.task}: {res.trials} trials, success open loop {res.open_loop_success_rate:.0%}, "
-            f"closed loop (TVLQR) {res.closed_loop_success_rate:.0%}"
-            + ("" if res.qp_filter_success_rate is None else f", TVLQR + QP filter {res.qp_filter_success_rate:.0%}")
-            + f" -> {path}"
-        )
-    return 0
+    return res
 
 
-def _file_problems(paths: list[str], scheme: str, N: int) -> list[Problem]:
-    """The problems of task files on ``scheme`` and ``N`` intervals."""
-    return [problem_from_settings(load_task_file(path).as_solve_kwargs(), scheme, N) for path in paths]
+def _file_problems(files: list, scheme: str, N: int) -> list[Problem]:
+    """The problems of loaded task files on ``scheme`` and ``N`` intervals."""
+    return [problem_from_settings(tf.as_solve_kwargs(), scheme, N) for tf in files]
 
 
 def cmd_check(args) -> int:
@@ -327,11 +379,19 @@ def cmd_check(args) -> int:
     if args.task and args.task_file:
         raise ValueError("--task, --task-file: give one of them")
     tasks: list = [args.task] if args.task else ["T1", "T2", "T3", "T4"]
+    for task in tasks:
+        get_task(task)
+    for scheme in [args.scheme] if args.scheme else []:
+        parse_scheme(f"{scheme},1S")
+    if args.N is not None and args.N < 3:
+        raise ValueError(f"--N: expected an integer number of intervals >= 3, got {args.N}")
     if args.sensitivities:
         scheme = f"{args.scheme or 'A,F+C'},1S"
-        if args.task_file:
-            tasks = _file_problems(args.task_file, scheme, args.N or 15)
-        rows, outs = sensitivity_table(tasks, scheme, N=args.N or 15, eps=args.eps)
+        N = args.N or SENSITIVITY_N
+        files = [load_task_file(path) for path in args.task_file or []]
+        with working():
+            tasks = _file_problems(files, scheme, N) if files else tasks
+            rows, outs = sensitivity_table(tasks, scheme, N=N, eps=args.eps)
         results = {"rows": rows, "results": outs}
     else:
         schemes = [args.scheme] if args.scheme else ["E,F", "A,F", "A,F+C"]
@@ -339,7 +399,8 @@ def cmd_check(args) -> int:
         cases += [(t, "A,F+C,2S", True) for t in tasks]  # the pseudo-static stage-1 problem
         N = args.N or 8
         problems = ((checks.case_label(t, s, ps, N), stage_problem(t, s, N, ps)) for t, s, ps in cases)
-        rows = checks.check_table(problems, points=args.points)
+        with working():
+            rows = checks.check_table(problems, points=args.points)
         results = {"rows": rows}
     print(checks.format_table(rows))
     if args.out:
@@ -379,20 +440,16 @@ def cmd_sweep(args) -> int:
     return 0 if summary["n_pending"] == 0 else 1
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="jaxhumanoid", description="Two-stage trajectory optimisation of a planar humanoid (JAX)."
-    )
-    parser.add_argument("--no-cache", action="store_true", help="do not use the persistent JAX compilation cache")
-    sub = parser.add_subparsers(dest="command", required=True)
+def _common(p, grid: bool = True) -> None:
+    """The options that several subcommands share."""
+    if grid:
+        p.add_argument("--N", type=int, default=100, help="number of intervals of the (final) grid (default 100)")
+        p.add_argument("--solver", default="ipopt", choices=["ipopt", "ipm", "casadi"])
+    p.add_argument("--ipopt-option", action="append", metavar="KEY=VALUE", help="IPOPT option, repeatable")
+    p.add_argument("--quiet", action="store_true")
 
-    def common(p, grid=True):
-        if grid:
-            p.add_argument("--N", type=int, default=100, help="number of intervals of the (final) grid (default 100)")
-            p.add_argument("--solver", default="ipopt", choices=["ipopt", "ipm", "casadi"])
-        p.add_argument("--ipopt-option", action="append", metavar="KEY=VALUE", help="IPOPT option, repeatable")
-        p.add_argument("--quiet", action="store_true")
 
+def _add_solve_parser(sub) -> None:
     p = sub.add_parser("solve", help="solve one task with one strategy")
     p.add_argument(
         "--task",
@@ -454,8 +511,46 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="out/solve")
     p.add_argument("--animate", action="store_true", help="also write animation.gif")
     p.add_argument("--verbose", action="store_true", help="print IPOPT's iteration log")
-    common(p, grid=False)
+    _common(p, grid=False)
     p.set_defaults(func=cmd_solve)
+
+
+def _add_check_parser(sub) -> None:
+    p = sub.add_parser("check", help="cross-validate JAX against CasADi and finite differences")
+    p.add_argument("--task", default=None, help="one task (default: all four)")
+    p.add_argument(
+        "--scheme",
+        default=None,
+        help="E,F | A,F | A,F+C (default: all three, plus the pseudo-static stage 1; A,F+C with --sensitivities)",
+    )
+    p.add_argument(
+        "--N", type=int, default=None, help=f"grid intervals (default 8; {SENSITIVITY_N} with --sensitivities)"
+    )
+    p.add_argument("--points", type=int, default=2, help="random points per case")
+    p.add_argument(
+        "--sensitivities",
+        action="store_true",
+        help="instead: KKT sensitivities of the optimal trajectory against finite differences of re-solves "
+        "(1S, every parameter group)",
+    )
+    p.add_argument("--eps", type=float, default=1e-5, help="finite-difference step of --sensitivities (relative)")
+    p.add_argument(
+        "--task-file", nargs="+", default=None, help="with --sensitivities: task files instead of the built-in tasks"
+    )
+    p.add_argument(
+        "--out", default=None, help="also write the rows (with --sensitivities: and the full results) as JSON"
+    )
+    p.set_defaults(func=cmd_check)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="jaxhumanoid", description="Two-stage trajectory optimisation of a planar humanoid (JAX)."
+    )
+    parser.add_argument("--no-cache", action="store_true", help="do not use the persistent JAX compilation cache")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    _add_solve_parser(sub)
 
     p = sub.add_parser("tasks", help="list the built-in tasks and the task files of a folder")
     p.add_argument("--dir", default="examples", help="folder of task files (default examples)")
@@ -471,7 +566,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="out/table2")
     p.add_argument("--tasks", nargs="*", help="T1..T4 (default all) or task files, e.g. examples/paper/T1.toml")
     p.add_argument("--schemes", nargs="*")
-    common(p)
+    _common(p)
     p.set_defaults(func=cmd_table2)
 
     p = sub.add_parser("animate", help="write an animation of a saved solution")
@@ -509,29 +604,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_track)
 
-    p = sub.add_parser("check", help="cross-validate JAX against CasADi and finite differences")
-    p.add_argument("--task", default=None, help="one task (default: all four)")
-    p.add_argument(
-        "--scheme",
-        default=None,
-        help="E,F | A,F | A,F+C (default: all three, plus the pseudo-static stage 1; A,F+C with --sensitivities)",
-    )
-    p.add_argument("--N", type=int, default=None, help="grid intervals (default 8; 15 with --sensitivities)")
-    p.add_argument("--points", type=int, default=2, help="random points per case")
-    p.add_argument(
-        "--sensitivities",
-        action="store_true",
-        help="instead: KKT sensitivities of the optimal trajectory against finite differences of re-solves "
-        "(1S, every parameter group)",
-    )
-    p.add_argument("--eps", type=float, default=1e-5, help="finite-difference step of --sensitivities (relative)")
-    p.add_argument(
-        "--task-file", nargs="+", default=None, help="with --sensitivities: task files instead of the built-in tasks"
-    )
-    p.add_argument(
-        "--out", default=None, help="also write the rows (with --sensitivities: and the full results) as JSON"
-    )
-    p.set_defaults(func=cmd_check)
+    _add_check_parser(sub)
+
+    add_bench_parser(sub)
 
     p = sub.add_parser("sweep", help="run a study: every case of a TOML spec, on worker processes or a cluster")
     p.add_argument("spec", help="the study's TOML file (examples/sweep_small.toml; format in studies/spec.py)")
@@ -556,6 +631,9 @@ def main(argv=None) -> int:
     except ValueError as err:
         print(f"jaxhumanoid: error: {err}", file=sys.stderr)
         return 2
+    except RunFailed as err:
+        print(f"jaxhumanoid: failed: {err}", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":

@@ -1,0 +1,148 @@
+"""What the benchmark scripts and ``jaxhumanoid bench`` share: timing of repeated calls, the
+benchmarks' workloads, and records that carry the commit and the environment.
+
+- ``time_fn``, ``alternate``: medians of wall and CPU time of jitted calls (in alternation where
+  several are compared, so that a varying load on a shared machine affects all alike);
+- ``bench_task``, ``stage1_problem``, ``stage2_warm_start``: the built-in tasks as the benchmarks
+  pose them, and the two NLPs of A,F+C,2S with the stage-2 start that 2S gives IPOPT;
+- ``git_state``, ``write_record``, ``show_table``: a JSON record stamped with the commit (and
+  whether the work tree had changes) and ``runtime.environment()``, and a markdown table.
+"""
+
+from __future__ import annotations
+
+import json
+import pathlib
+import subprocess
+import time
+from collections.abc import Callable, Mapping
+from typing import Any
+
+import jax
+import numpy as np
+
+from jaxhumanoid.model.params import ContactParams
+from jaxhumanoid.ocp import transcription as tr
+from jaxhumanoid.ocp.scheme import parse_scheme
+from jaxhumanoid.ocp.tasks import NO_FORCE_LIMIT, Task, with_force_limit
+from jaxhumanoid.runtime import environment
+from jaxhumanoid.solvers.ipopt import solve_ipopt
+from jaxhumanoid.strategy import solve as strat
+from jaxhumanoid.strategy.problem import Problem, build_problem
+
+SCHEME = "A,F+C,2S"
+REPO = pathlib.Path(__file__).resolve().parents[2]
+
+
+def time_fn(fn: Callable, *args, repeats: int = 50) -> dict:
+    """Compile time (first call), then median / min wall time and median CPU time (this process,
+    all threads) of ``repeats`` further calls, in ms. On a shared machine the CPU time is the
+    steadier figure: time-slicing inflates wall time, not the work done."""
+    t0 = time.perf_counter()
+    jax.block_until_ready(fn(*args))
+    compile_ms = (time.perf_counter() - t0) * 1e3
+    wall, cpu = [], []
+    for _ in range(repeats):
+        t0, c0 = time.perf_counter(), time.process_time()
+        jax.block_until_ready(fn(*args))
+        wall.append((time.perf_counter() - t0) * 1e3)
+        cpu.append((time.process_time() - c0) * 1e3)
+    return {
+        "median_ms": float(np.median(wall)),
+        "min_ms": float(np.min(wall)),
+        "cpu_median_ms": float(np.median(cpu)),
+        "compile_ms": compile_ms,
+        "repeats": repeats,
+    }
+
+
+def alternate(fns: Mapping[str, Callable], repeats: int, per: Mapping[str, int] | None = None) -> dict:
+    """Median wall and CPU ms (this process) of each zero-argument function, called in alternation
+    (one call of each per round, in a new random order each round) after one warm-up call; divided
+    by ``per[k]`` (batch members) where given."""
+    for f in fns.values():
+        jax.block_until_ready(f())
+    wall: dict = {k: [] for k in fns}
+    cpu: dict = {k: [] for k in fns}
+    order, rng = list(fns), np.random.default_rng(0)
+    for _ in range(repeats):
+        rng.shuffle(order)
+        for k in order:
+            t0, c0 = time.perf_counter(), time.process_time()
+            jax.block_until_ready(fns[k]())
+            wall[k].append((time.perf_counter() - t0) * 1e3)
+            cpu[k].append((time.process_time() - c0) * 1e3)
+    per = per or {}
+    return {
+        k: {
+            "median_ms": float(np.median(wall[k])) / per.get(k, 1),
+            "min_ms": float(np.min(wall[k])) / per.get(k, 1),
+            "cpu_median_ms": float(np.median(cpu[k])) / per.get(k, 1),
+            "per": per.get(k, 1),
+        }
+        for k in fns
+    }
+
+
+def bench_task(key: str) -> Task:
+    """The benchmarks' workload for the built-in task ``key``: that task without a contact-force
+    limit (T3 carries one), so that what a benchmark times does not move with the task's posing."""
+    return with_force_limit(key, NO_FORCE_LIMIT)
+
+
+def stage1_problem(task: str, N1: int = strat.STAGE1_N) -> tuple[Problem, Problem]:
+    """Stage 1 of 2S (pseudo-static, relaxed contact law, re-seated start) of ``bench_task(task)``,
+    and its stage-2 problem (N = 100)."""
+    t = bench_task(task)
+    final = build_problem(t, parse_scheme(SCHEME), N=100)
+    relaxed = ContactParams.relaxed()
+    q1, _ = strat.reseat_for_contact(final.p, final.p.q_start, final.layout.active, relaxed)
+    first = build_problem(t, parse_scheme(SCHEME), N=N1, pseudo_static=True, contact=relaxed, q_start=q1)
+    return first, final
+
+
+def stage2_warm_start(task: str) -> tuple[Problem, np.ndarray]:
+    """The stage-2 problem and its 2S start from IPOPT's stage-1 solution (interpolated)."""
+    first, prob = stage1_problem(task)
+    r1 = solve_ipopt(first.nlp, first.p, first.bounds, options=strat.STAGE1_DEFAULTS)
+    Zf = strat.interpolate_full(first.full(r1.x), float(prob.p.T), prob.layout)
+    return prob, np.clip(np.asarray(tr.free_from_full(prob.layout, Zf)), prob.bounds.xl, prob.bounds.xu)
+
+
+def git_state(root: pathlib.Path | str = REPO) -> dict[str, Any]:
+    """The commit checked out at ``root``, its ``git describe`` and whether tracked files differ
+    from it (``dirty``); ``None`` for each outside a git work tree."""
+
+    def git(*args: str) -> str | None:
+        try:
+            out = subprocess.run(["git", *args], cwd=root, capture_output=True, text=True, timeout=30)
+        except (OSError, subprocess.TimeoutExpired):
+            return None
+        return out.stdout.strip() if out.returncode == 0 else None
+
+    commit = git("rev-parse", "HEAD")
+    status = git("status", "--porcelain", "--untracked-files=no") if commit else None
+    describe = git("describe", "--always", "--tags", "--dirty") if commit else None
+    return {"commit": commit, "describe": describe, "dirty": None if status is None else bool(status)}
+
+
+def stamp(results: Mapping[str, Any]) -> dict[str, Any]:
+    """``results`` with the commit, the dirty flag and ``runtime.environment()`` in front."""
+    return {**git_state(), "environment": environment(), **results}
+
+
+def write_record(results: Mapping[str, Any], path: str | pathlib.Path, quiet: bool = False) -> pathlib.Path:
+    """Write ``stamp(results)`` as JSON to ``path`` (folders made); returns the path."""
+    out = pathlib.Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(stamp(results), indent=2, default=float) + "\n")
+    if not quiet:
+        print(f"wrote {out}")
+    return out
+
+
+def show_table(text: str, path: str | pathlib.Path | None) -> None:
+    """Print a markdown table and, with ``path``, write it there too."""
+    print(text)
+    if path:
+        pathlib.Path(path).write_text(text + "\n")

@@ -1,0 +1,158 @@
+"""``jaxhumanoid bench``: the runner's record and table on a fake suite (no solves), its argument
+checks (bad input exits 2 before any work), the reference README's figures, and one real solve."""
+
+from __future__ import annotations
+
+import json
+import pathlib
+import shutil
+
+import numpy as np
+import pytest
+
+from jaxhumanoid.outputs.cli import main
+from jaxhumanoid.studies import runner, suites
+from jaxhumanoid.studies.runner import BenchSettings, Case, Measurement, Suite
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+
+# two rows of the reference posing's README, as it writes them
+REFERENCE_README = """
+| task | stage 1 iterations | stage 2 iterations | solve time (s): stage 1 + stage 2 | objective (7) | stage 2 ... |
+|---|---|---|---|---|---|
+| T1 | 106 | 224 | 0.3 + 3.2 = 3.5 | 1018.81 | 14.5 ms (function evaluations 36 %) |
+| T2 | 36 | 263 | 0.1 + 3.9 = 4.0 | 579.97 | 14.8 ms (37 %) |
+"""
+
+
+def fake_suite(calls: list[str]) -> Suite:
+    """Two cases: ``steady`` gives the same values each run, ``drifting`` does not."""
+
+    def make(name: str, times: list[float], drift: bool) -> Case:
+        def run() -> Measurement:
+            calls.append(name)
+            k = sum(c == name for c in calls)
+            return Measurement({"status": "ok", "iterations": [3, 4 + (k if drift else 0)]}, {"solve_s": times[k - 1]})
+
+        return Case(name, run)
+
+    def cases(settings: BenchSettings) -> list[Case]:
+        return [make("steady", [3.0, 1.0, 2.0], False), make("drifting", [5.0, 5.0, 5.0], True)]
+
+    def summary(records, settings):
+        return {"cases": [r["case"] for r in records]}
+
+    def table(rec) -> str:
+        return "\n".join(f"| {c['case']} | {runner.fmt_time(c['times']['solve_s'])} |" for c in rec["cases"])
+
+    return Suite(cases, table, summary, about="A fake suite.")
+
+
+def test_record_and_markdown_of_a_fake_suite(tmp_path):
+    calls: list[str] = []
+    suites_ = {"fake": fake_suite(calls)}
+    settings = BenchSettings(repeats=3, quiet=True)
+    record = runner.run_record(runner.plan_run(["fake"], suites_, settings), suites_, settings, argv=["bench"])
+    # every case once per round, in alternation
+    assert calls == ["steady", "drifting"] * 3
+    assert {"commit", "describe", "dirty", "environment", "started", "settings"} <= set(record)
+    env = record["environment"]
+    assert env["python"] and env["packages"]["jax"] and env["packages"]["numpy"] and "cpu" in env
+    rec = record["suites"]["fake"]
+    assert rec["summary"] == {"cases": ["steady", "drifting"]} and rec["rounds"] == 3
+    steady, drifting = rec["cases"]
+    assert steady["repeats_agree"] and steady["iterations"] == [3, 4] and steady["runs"] == 3
+    assert steady["times"]["solve_s"] == {"median": 2.0, "min": 1.0, "max": 3.0, "runs": [3.0, 1.0, 2.0]}
+    assert not drifting["repeats_agree"] and drifting["iterations"] == [3, 5]
+    assert [d["iterations"] for d in drifting["differing"]] == [[3, 6], [3, 7]]
+    text = runner.markdown(record, suites_)
+    assert "## fake\n\nA fake suite." in text
+    assert "| steady | 2.00 (1.00-3.00) |" in text and "| drifting | 5.00 |" in text
+    assert (record["describe"] or "unknown") in text
+    json_path, md_path = runner.write_run(record, text, tmp_path)
+    assert json.loads(json_path.read_text())["suites"]["fake"]["cases"][0]["case"] == "steady"
+    assert md_path.read_text() == text and json_path.parent == tmp_path
+
+
+def test_a_suite_that_does_not_repeat_runs_once():
+    calls: list[str] = []
+    suite = fake_suite(calls)._replace(repeat=False)
+    rec = runner.run_suite("fake", suite, suite.cases(BenchSettings()), BenchSettings(repeats=5, quiet=True))
+    assert calls == ["steady", "drifting"] and rec["rounds"] == 1
+
+
+@pytest.mark.parametrize(
+    "kwargs, field",
+    [
+        ({"repeats": 0}, "--repeats"),
+        ({"repeats": 1.5}, "--repeats"),
+        ({"N": 2}, "--N"),
+        ({"tasks": ("T7",)}, "--tasks"),
+        ({"tasks": ()}, "--tasks"),
+        ({"backends": ("snopt",)}, "--backends"),
+        ({"draws": 0}, "--draws"),
+        ({"workers": 0}, "--workers"),
+    ],
+)
+def test_settings_are_checked(kwargs, field):
+    with pytest.raises(ValueError, match=field):
+        BenchSettings(**kwargs)
+
+
+def test_bad_input_exits_2_before_any_work(capsys, tmp_path, monkeypatch):
+    def never(*args, **kwargs):
+        raise AssertionError("no solve before the input is checked")
+
+    monkeypatch.setattr(suites, "solve", never)
+    out = tmp_path / "bench"
+    for argv, field in [
+        (["--repeats", "0"], "--repeats"),
+        (["--tasks", "T7"], "--tasks"),
+        (["--suite", "reference", "--reference-dir", str(tmp_path / "none")], "--reference-dir"),
+        (["--suite", "robustness", "--spec", str(tmp_path / "none.toml")], "none.toml"),
+        (["--suite", "robustness", "--draws", "0"], "--draws"),
+    ]:
+        assert main(["--no-cache", "bench", *argv, "--out", str(out)]) == 2, argv
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("jaxhumanoid: error:") and field in err[0], (argv, err)
+    for argv in (["--suite", "speed"], ["--backends", "snopt"], ["--repeats", "many"]):
+        with pytest.raises(SystemExit) as exc:  # argparse's choices and types
+            main(["--no-cache", "bench", *argv, "--out", str(out)])
+        assert exc.value.code == 2
+    assert not out.exists()
+
+
+def test_reference_figures_parse_the_readme():
+    figures = suites.reference_figures(REFERENCE_README)
+    assert figures["T1"] == {
+        "iterations": [106, 224],
+        "solve_s": [0.3, 3.2],
+        "solve_total_s": 3.5,
+        "objective": 1018.81,
+        "stage2_ms_per_iteration": 14.5,
+    }
+    assert set(figures) == {"T1", "T2"}
+
+
+def test_reference_suite_one_real_solve(tmp_path, capsys):
+    """The reference suite on one task file and IPOPT at N = 15: the record holds the solve's
+    stages, the README's figures side by side and the ratios, and the table shows both."""
+    ref = tmp_path / "reference"
+    ref.mkdir()
+    shutil.copy(REPO / "examples" / "paper" / "T1.toml", ref / "T1.toml")
+    (ref / "README.md").write_text(REFERENCE_README)
+    out = tmp_path / "bench"
+    argv = ["bench", "--suite", "reference", "--tasks", "T1", "--backends", "ipopt", "--N", "15", "--repeats", "1"]
+    assert main([*argv, "--reference-dir", str(ref), "--out", str(out), "--quiet"]) == 0
+    (json_path,) = out.glob("*.json")
+    record = json.loads(json_path.read_text())
+    rec = record["suites"]["reference"]
+    (case,) = rec["cases"]
+    assert case["case"] == "T1 ipopt" and case["runs"] == 1 and case["repeats_agree"]
+    assert len(case["iterations"]) >= 2 and all(isinstance(i, int) and i > 0 for i in case["iterations"])
+    assert np.isfinite(case["objective"]) and case["times"]["solve_s"]["median"] > 0
+    assert rec["summary"]["reference"]["T1"]["objective"] == 1018.81
+    ratio = rec["summary"]["ratios"]["T1 ipopt"]["objective_rel_diff"]
+    assert ratio == pytest.approx(abs(case["objective"] - 1018.81) / 1018.81)
+    table = json_path.with_suffix(".md").read_text()
+    assert "| T1 | ipopt |" in table and "| 106+224 | 3.5 | 1018.81 | 14.5 |" in table
