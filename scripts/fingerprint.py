@@ -25,7 +25,6 @@ import numpy as np
 
 import jaxhumanoid  # noqa: F401  (x64)
 from jaxhumanoid.diff import sensitivity_table
-from jaxhumanoid.ocp import transcription as tr
 from jaxhumanoid.solvers.ipm import solve_ipm
 from jaxhumanoid.solvers.ipopt import solve_ipopt
 from jaxhumanoid.strategy import solve as strat
@@ -47,8 +46,7 @@ def task_records(task: str) -> dict:
     r1 = solve_ipopt(first.nlp, first.p, first.bounds, options=strat.STAGE1_DEFAULTS)
     out["stage1_ipopt"] = _rec(r1)
     out["stage1_ipm"] = _rec(solve_ipm(first.nlp, first.p, first.bounds, options=strat.STAGE1_DEFAULTS))
-    Zf = strat.interpolate_full(first.full(r1.x), float(final.p.T), final.layout)
-    x0 = np.clip(np.asarray(tr.free_from_full(final.layout, Zf)), final.bounds.xl, final.bounds.xu)
+    x0, _ = strat.stage_two_start(first.full(r1.x), final)
     for name, fn in (("ipopt", solve_ipopt), ("ipm", solve_ipm)):
         out[f"stage2_{name}"] = _rec(fn(final.nlp, final.p, final.bounds, x0=x0, options=strat.STAGE2_DEFAULTS))
     return out

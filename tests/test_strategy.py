@@ -69,7 +69,8 @@ def test_failed_stage_one_retries_with_the_fallback_and_counts_every_run(monkeyp
     assert len(calls) == runs + 1 and sol.stages[0].status == "Error" and sol.stages[0].attempts == runs
     assert not sol.success and not sol.stages[0].force_limit_lifted and sol.stages[0].strength_factor == 1.0
     u_max = [np.max(c[3].full(c[3].bounds.xu)[:-1, c[3].layout.stage_slices()["u"]]) for c in calls]
-    assert u_max[:-3] == [u_max[0]] * (runs - 2) and u_max[-3:-1] == [2 * u_max[0]] * 2 and u_max[-1] == u_max[0]
+    assert u_max[:-3] == [u_max[0]] * (runs - 2) and u_max[-3:-1] == [2 * u_max[0]] * 2
+    assert u_max[-1] * strat.STAGE1_STRENGTH == u_max[0]  # stage 2 keeps the body's box
     x = [c[2] for c in calls[:runs]]
     adaptive = ["mu_strategy" in c[1] for c in calls[:runs]]
     assert adaptive == [False] + [fb.options.get("mu_strategy") == "adaptive" for fb in kept]
@@ -120,20 +121,27 @@ def test_stage_one_of_a_task_with_a_force_limit_falls_back_to_none_and_stage_two
 
 def test_stage_one_that_fails_within_the_strengths_falls_back_to_twice_the_torque_box(monkeypatch):
     def fake_run(solver, problem, x0, options, verbose, progress=None, scaling="none"):
-        strong = np.max(problem.full(problem.bounds.xu)[:-1, problem.layout.stage_slices()["u"]]) > 600.0
+        u_max = np.max(problem.full(problem.bounds.xu)[:-1, problem.layout.stage_slices()["u"]])
+        strong = u_max > 2 * strat.STAGE1_STRENGTH * 300.0
         fail = problem.layout.pseudo_static and not strong  # the strongest joint holds 500 N m
         return _fake_result(problem, x0, "Infeasible_Problem_Detected" if fail else "Solve_Succeeded", 3)
 
     monkeypatch.setattr(strat, "_run_solver", fake_run)
-    with pytest.warns(UserWarning, match=r"solved with torque box x2; the dynamic stages keep the task's bounds"):
+    with pytest.warns(
+        UserWarning, match=r"solved with stage 1's torque box x2; the dynamic stages keep the task's bounds"
+    ):
         sol = strat.solve("T1", "A,F+C,2S", N=10, N1=5, guess="linear", handover="direct")
     first = sol.stages[0]
     assert sol.success and first.strength_factor == 2.0 and not first.force_limit_lifted
     assert first.attempts == 2 + sum(not fb.lift_force_limit for fb in strat.STAGE1_FALLBACKS)
-    body = strat.stage_one_problem("T1", "A,F+C,2S", strat.build_problem("T1", "A,F+C,2S", N=10), 5, strength=2.0)
-    np.testing.assert_array_equal(
-        body.model.u_max, 2.0 * np.asarray(strat.build_problem("T1", "A,F+C,1S", N=5).model.u_max)
-    )
+    final = strat.build_problem("T1", "A,F+C,2S", N=10)
+    u_max = np.asarray(strat.build_problem("T1", "A,F+C,1S", N=5).model.u_max)
+    body = strat.stage_one_problem("T1", "A,F+C,2S", final, 5, strength=2.0)
+    np.testing.assert_array_equal(body.model.u_max, 2.0 * u_max)
+    # stage 1 poses the body with STAGE1_STRENGTH times its torque box; the final problem keeps it
+    default = strat.stage_one_problem("T1", "A,F+C,2S", final, 5)
+    np.testing.assert_array_equal(default.model.u_max, strat.STAGE1_STRENGTH * u_max)
+    np.testing.assert_array_equal(final.model.u_max, u_max)
 
 
 def test_law_path_runs_geometrically_from_the_relaxed_to_the_nominal_law():

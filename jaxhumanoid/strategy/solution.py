@@ -52,7 +52,7 @@ class StageStats:
     start_violation: float = float("nan")  # max constraint violation at the stage's start point
     runs: tuple[int, ...] = ()  # iterations of each solver run, in order
     force_limit_lifted: bool = False  # stage 1 solved only without the task's contact-force limit
-    strength_factor: float = 1.0  # stage 1 solved only with its torque box scaled by this factor
+    strength_factor: float = 1.0  # stage 1 solved only with its torque box (STAGE1_STRENGTH u_max) scaled by this
     law_step: int = 0  # stage 1's law: step j of the path from the relaxed to the nominal law
 
 

@@ -58,17 +58,21 @@ STAGE1_N = 30
 # its bounds.
 STAGE1_DEFAULTS = {"mu_init": 1e-2}
 STAGE2_DEFAULTS = {"mu_init": 1e-3, "bound_push": 1e-6, "bound_frac": 1e-6}
+# Stage 1 poses the body with twice its torque box (the cost keeps the task's weights; the
+# dynamic stages keep the body's box): a quasi-static motion, without inertia to carry the body
+# through, needs more torque than a dynamic one (getting up prone quasi-statically takes about 1.7
+# times an adult's strength), and within the body's own box stage 1 of the built-in T1 ends
+# infeasible. Twice the box: 12 of 12 perturbed problems solve and the whole 2S takes 414
+# iterations at the median, against 11 of 12 and 470 (docs/results.md).
+STAGE1_STRENGTH = 2.0
 # Stage 1 can still end "infeasible" from its initial guess: its landscape is chaotic, and starts
-# 1e-4 apart end in different optima or fail (scripts/study_stage1.py). Each failed run is followed
-# by the next fallback, in order, by every solver. The two guesses fail on different problems (on
-# perturbed T1 the inverse-dynamics guess fails where the linear one converges, on perturbed T3 the
-# other way round: docs/results.md), so every fallback is tried from both. The final problem's
-# bounds can make stage 1 infeasible from every start: a quasi-static motion, without inertia, can
-# need more force or torque than a dynamic one (perturbed T3 under its contact-force limit,
-# perturbed T1 within the strengths). The last fallbacks therefore relax stage 1's bounds, first
-# without the task's contact-force limit, then with twice the torque box too; the dynamic stages
-# keep the task's bounds and bring the motion back within them. The iterations and times of every
-# run add up.
+# 1e-4 apart end in different optima or fail. Each failed run is followed by the next fallback, in
+# order, by every solver. The two guesses fail on different problems, so every fallback is tried
+# from both. The final problem's bounds can make stage 1 infeasible from every start (perturbed T3
+# under its contact-force limit), so the last fallbacks relax stage 1's bounds, first without the
+# task's contact-force limit, then with twice stage 1's torque box too; the dynamic stages keep the
+# task's bounds and bring the motion back within them. The iterations and times of every run add
+# up.
 STAGE1_RESTART_SIGMA = 1e-4
 
 
@@ -78,7 +82,8 @@ class Fallback:
     guess of ``GUESSES`` when ``other_guess``; with ``seed``, every entry of the guess moved by
     ``STAGE1_RESTART_SIGMA`` times a standard normal draw of that fixed seed; without the task's
     contact-force limit when ``lift_force_limit`` (skipped for a task that has none, unless the
-    strength changes too); with the torque box u_max scaled by ``strength``."""
+    strength changes too); with stage 1's torque box ``STAGE1_STRENGTH`` u_max scaled by
+    ``strength``."""
 
     options: dict
     seed: int | None = None
@@ -92,7 +97,7 @@ class Fallback:
 
     def relaxations(self, task: Task) -> tuple[str, ...]:
         """How the run relaxes ``task``'s bounds, in words (empty when it does not)."""
-        return ((f"torque box x{self.strength:g}",) if self.strength != 1.0 else ()) + (
+        return ((f"stage 1's torque box x{self.strength:g}",) if self.strength != 1.0 else ()) + (
             ("no contact-force limit",) if self.lifts_limit(task) else ()
         )
 
@@ -366,7 +371,13 @@ def relaxed_stage_problem(final: Problem, first: ContactParams, steps: int) -> t
 
 
 def stage_one_problem(
-    task, scheme, final: Problem, N1: int, contact_stage1=None, guess: str = "linear", strength: float = 1.0
+    task,
+    scheme,
+    final: Problem,
+    N1: int,
+    contact_stage1=None,
+    guess: str = "linear",
+    strength: float = STAGE1_STRENGTH,
 ) -> Problem:
     """Stage 1 of 2S for the final problem ``final``: the pseudo-static problem (8) on N1 intervals
     under ``contact_stage1`` (default ``ContactParams.relaxed()``), from the start posture re-seated
@@ -411,7 +422,7 @@ def _stage_one(
                 starts[lift, strength, other] = with_guess(base, next(g for g in GUESSES if g != guess))
             else:
                 posed = with_force_limit(task, NO_FORCE_LIMIT) if lift else task
-                problem = stage_one_problem(posed, scheme, final, N1, contact_stage1, guess, strength)
+                problem = stage_one_problem(posed, scheme, final, N1, contact_stage1, guess, STAGE1_STRENGTH * strength)
                 starts[lift, strength, other] = problem
         return starts[lift, strength, other]
 
@@ -435,7 +446,7 @@ def _stage_one(
     if attempts[-1].success and relaxed:
         stats = dataclasses.replace(stats, force_limit_lifted=last.lifts_limit(task), strength_factor=last.strength)
         warnings.warn(
-            f"task {task.key}: stage 1 failed under the final problem's bounds and was solved with "
+            f"task {task.key}: stage 1 failed under its bounds and was solved with "
             f"{', '.join(relaxed)}; the dynamic stages keep the task's bounds",
             stacklevel=3,
         )
