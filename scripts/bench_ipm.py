@@ -1,25 +1,30 @@
 """Benchmark: the own interior-point method (IPM) against IPOPT on the same NLPs, in one run.
 
-    python scripts/bench_ipm.py [--tasks T1 T2 T3 T4] [--runs 3] [--batch 32] [--iters 40]
-                                [--out results/bench_ipm.json] [--skip-compile] [--skip-batch]
-                                [--skip-per-iteration] [--skip-spread] [--compile-only RUNS]
-                                [--compile-sweeps joint grouped]
+    OMP_NUM_THREADS=1 python scripts/bench_ipm.py [--problems T1 T2 T3 T4 ref:T1 ref:T2 ref:T3 ref:T4]
+        [--runs 3] [--compile-runs 3] [--compile-tasks T1 ref:T1] [--parts stage2 compile]
+        [--ref-dir ../shared/reference_posing] [--out results/bench_ipm.json]
 
-1. Per-iteration time at N = 100 (T1's dynamic stage-2 NLP from the 2S warm start, ``--iters``
-   iterations, medians of ``--runs``): IPM and IPOPT, and their ratio.
-2. The whole 2S solve (A,F+C,2S) per task with each solver: stage statuses and iterations, solve
-   time (compile excluded), objective relative difference and max |q_ipm - q_ipopt|; then stage 2
-   alone from the same start (IPOPT's stage-1 solution) for both, to compare optima and
-   iteration counts on the same problem; then stage 1 with IPOPT under options that change only
-   the rounding of its linear solves (``ROUNDING_VARIANTS``) next to the IPM: IPOPT's own spread
-   of iteration counts and optima on these chaotic NLPs (``--skip-spread`` skips it).
-3. IPM compile time of the N = 100 NLP in fresh processes: cold (empty persistent JAX cache) and
-   warm (the cache the cold run filled). ``--compile-only RUNS`` measures only this, RUNS times,
-   for the solve as one program and as the command line runs it (with a progress line), with
-   each of ``--compile-sweeps`` (the derivatives' sweeps, ``stagewise_nlp``).
-4. Throughput of a ``vmap`` batch of ``--batch`` stage-1 (pseudo-static, N1 = 30) problems of T1
-   with perturbed cost weights (``batch_solve_ipm``), against the same problems one after another.
-Set OMP_NUM_THREADS=1 when comparing with other runs.
+Problems: a built-in task key (``T1``..``T4``, as posed) or ``ref:T1`` .. for
+``<ref-dir>/T1.toml`` (the reference posing). Parts (``--parts``):
+
+- ``stage2``: stage 2 of A,F+C,2S from the same start for both solvers: the last NLP of a
+  direct-hand-over 2S solve by IPOPT (stage 1 by IPOPT), with the options that solve gives it
+  (the task file's included). The IPM as one compiled program (``ipm``) and as the command line
+  runs it, one compiled iteration at a time with a progress callback (``ipm_cli``), and IPOPT are
+  solved in alternation, ``--runs`` times each after one warm-up, timed by CPU time of this
+  process and by wall time. Also the counts that set an iteration's cost: the IPM's
+  factorisations (inertia-correction trials), line-search trial points (each an evaluation of f
+  and g), second-order corrections and restoration iterations; IPOPT's function, gradient,
+  Jacobian and Hessian evaluations and its own timing statistics.
+- ``compile``: ``jaxhumanoid solve --task T1 --solver ipm`` (each of ``--compile-tasks``) in a
+  fresh process with an empty compilation cache, ``--compile-runs`` times: each stage's compile
+  time from its report, the process's CPU and wall time.
+- ``spread``: stage 1 of the benchmark tasks by IPOPT under options that change only the
+  rounding of its linear solves, and by the IPM (the spread of IPOPT's own iteration counts).
+- ``batch``: a ``vmap`` batch of T1 stage-1 problems against the same problems one by one.
+
+Prints a table per part and writes a JSON record (``--out``) with the git commit and the
+environment (``jaxhumanoid.runtime.environment``).
 """
 
 from __future__ import annotations
@@ -31,6 +36,8 @@ import argparse
 import dataclasses
 import json
 import os
+import pathlib
+import re
 import subprocess
 import sys
 import tempfile
@@ -40,93 +47,210 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-import jaxhumanoid  # noqa: F401
-from jaxhumanoid.derivatives.stagewise import SWEEPS
-from jaxhumanoid.model.params import ContactParams
-from jaxhumanoid.ocp import transcription as tr
-from jaxhumanoid.ocp.scheme import parse_scheme
-from jaxhumanoid.runtime import enable_compilation_cache
+from jaxhumanoid.runtime import enable_compilation_cache, environment
 from jaxhumanoid.solvers.ipm import batch_solve_ipm, solve_ipm
 from jaxhumanoid.solvers.ipopt import solve_ipopt
 from jaxhumanoid.strategy import solve as strat
-from jaxhumanoid.strategy.problem import build_problem
-from jaxhumanoid.studies.bench import bench_task, write_record
+from jaxhumanoid.strategy.taskfile import load_task_file
+from jaxhumanoid.studies.bench import git_state, stage1_problem
 
 SCHEME = "A,F+C,2S"
+REPO = pathlib.Path(__file__).resolve().parents[1]
+REF_DIR = REPO.parent.parent / "shared" / "reference_posing"
 
 
-def stage1_problem(task: str, N1: int = strat.STAGE1_N):
-    """Stage 1 of 2S (pseudo-static, relaxed contact law, re-seated start) and the stage-2 problem."""
-    t = bench_task(task)
-    final = build_problem(t, parse_scheme(SCHEME), N=100)
-    relaxed = ContactParams.relaxed()
-    q1, _ = strat.reseat_for_contact(final.p, final.p.q_start, final.layout.active, relaxed)
-    first = build_problem(t, parse_scheme(SCHEME), N=N1, pseudo_static=True, contact=relaxed, q_start=q1)
-    return first, final
+# ----------------------------------------------------------------------------- problems
+def solve_kwargs_of(name: str, ref_dir: pathlib.Path) -> dict:
+    if name.startswith("ref:"):
+        return load_task_file(ref_dir / f"{name[4:]}.toml").as_solve_kwargs()
+    return {"task": name}
 
 
-def stage2_warm_start(task: str):
-    """The stage-2 problem and its 2S warm start from IPOPT's stage-1 solution (interpolated)."""
-    first, prob = stage1_problem(task)
-    r1 = solve_ipopt(first.nlp, first.p, first.bounds, options=strat.STAGE1_DEFAULTS)
-    Zf = strat.interpolate_full(first.full(r1.x), float(prob.p.T), prob.layout)
-    return prob, np.clip(np.asarray(tr.free_from_full(prob.layout, Zf)), prob.bounds.xl, prob.bounds.xu)
+def stage2_start(name: str, ref_dir: pathlib.Path):
+    """(problem, x0, options) of the last solve of a direct-hand-over 2S solve by IPOPT: stage 2
+    from IPOPT's stage 1, with the options that stage gets."""
+    calls = []
+    run = strat._run_solver
+
+    def record(solver, problem, x0, options, *a, **k):
+        calls.append((problem, np.array(x0, dtype=float), dict(options)))
+        return run(solver, problem, x0, options, *a, **k)
+
+    kw = {**solve_kwargs_of(name, ref_dir), "solver": "ipopt", "stage1_solver": "ipopt", "handover": "direct"}
+    strat._run_solver = record
+    try:
+        strat.solve(**kw)
+    finally:
+        strat._run_solver = run
+    return calls[-1]
 
 
-def rel_diff(a: float, b: float) -> float:
-    """|a - b| / |b| (b the IPOPT reference)."""
-    return abs(a - b) / max(abs(b), 1e-12)
+# ----------------------------------------------------------------------------- stage 2
+IPOPT_COUNTS = {
+    "f": "objective function evaluations",
+    "g": "equality constraint evaluations",
+    "grad": "objective gradient evaluations",
+    "jac": "equality constraint Jacobian evaluations",
+    "hess": "Lagrangian Hessian evaluations",
+}
+IPOPT_TIMERS = ("OverallAlgorithm", "PDSystemSolverTotal", "Function Evaluations", "ComputeAcceptableTrialPoint")
 
 
-def per_iteration(runs: int, iters: int) -> dict:
-    """Both solvers on T1's stage-2 NLP from the same warm start (IPOPT's stage-1 solution,
-    interpolated, as 2S does) with the 2S stage-2 options: the iterations that 2S spends."""
-    prob, x0 = stage2_warm_start("T1")
-    opts = {**strat.STAGE2_DEFAULTS, "max_iter": iters}
-    out = {}
-    for name, fn in (("ipm", solve_ipm), ("ipopt", solve_ipopt)):
-        if name == "ipopt":  # jit the evaluators (the IPM reports compile apart)
-            fn(prob.nlp, prob.p, prob.bounds, x0=x0, options=opts)
-        ms = []
-        for _ in range(runs):
-            r = fn(prob.nlp, prob.p, prob.bounds, x0=x0, options=opts)
-            ms.append(r.solve_time_s / max(r.iterations, 1) * 1e3)
-        out[name] = {"ms_per_iteration_median": float(np.median(ms)), "samples_ms": ms, "iterations": int(r.iterations)}
-    out["ratio_ipm_over_ipopt"] = out["ipm"]["ms_per_iteration_median"] / out["ipopt"]["ms_per_iteration_median"]
+def ipopt_counts(log: str) -> dict:
+    """IPOPT's evaluation counts and CPU seconds of its timers, read from its log."""
+    out: dict = {}
+    for key, text in IPOPT_COUNTS.items():
+        m = re.search(rf"Number of {text}\s*=\s*(\d+)", log)
+        out[key] = int(m.group(1)) if m else None
+    for key in IPOPT_TIMERS:
+        m = re.search(rf"^{re.escape(key)}\.*:\s*([\d.]+)", log, re.M)
+        out[f"{key}_cpu_s"] = float(m.group(1)) if m else None
     return out
 
 
-def stage2_same_start(task: str) -> dict:
-    """Stage 2 of 2S (the dynamic N = 100 NLP) from the same warm start for both solvers (IPOPT's
-    stage-1 solution, interpolated, as 2S does): does the IPM reach IPOPT's optimum on the same
-    problem, and in how many iterations?"""
-    prob, x0 = stage2_warm_start(task)
-    out = {}
-    for name, fn in (("ipm", solve_ipm), ("ipopt", solve_ipopt)):
-        r = fn(prob.nlp, prob.p, prob.bounds, x0=x0, options=strat.STAGE2_DEFAULTS)
-        out[name] = {
+def ipm_counts(r) -> dict:
+    """The IPM's per-solve counts from its history (iterations 1..k)."""
+    h, k = r.history, r.iterations
+    kind = np.asarray(h["kind"][1 : k + 1])
+    return {
+        "factorizations": int(np.sum(h["n_fact"][1 : k + 1])),
+        "trial_points": int(np.sum(h["ls"][1 : k + 1])),
+        "soc_steps": int(np.sum((kind == ord("F")) | (kind == ord("H")))),
+        "restoration_iterations": int(np.sum(h["mode"][1 : k + 1])),
+        "regularized_iterations": int(np.sum(np.asarray(h["reg"][1 : k + 1]) > 0)),
+    }
+
+
+def timed(fn):
+    c0, t0 = time.process_time(), time.perf_counter()
+    r = fn()
+    return r, time.process_time() - c0, time.perf_counter() - t0
+
+
+def stage2_case(name: str, runs: int, ref_dir: pathlib.Path) -> dict:
+    """The three solvers on one stage-2 NLP from the same start, in alternation."""
+    problem, x0, opts = stage2_start(name, ref_dir)
+    nlp, p, b = problem.nlp, problem.p, problem.bounds
+    io = {**opts, "print_timing_statistics": "yes"}
+    solvers = {
+        "ipm": lambda: solve_ipm(nlp, p, b, x0=x0, options=opts),
+        "ipm_cli": lambda: solve_ipm(nlp, p, b, x0=x0, options=opts, progress=lambda k, f, inf: None),
+        "ipopt": lambda: solve_ipopt(nlp, p, b, x0=x0, options=io),
+    }
+    samples: dict = {k: {"cpu": [], "wall": []} for k in solvers}
+    last = {k: f() for k, f in solvers.items()}  # compile / jit the callbacks
+    for _ in range(runs):
+        for k, f in solvers.items():
+            last[k], cpu, wall = timed(f)
+            samples[k]["cpu"].append(cpu)
+            samples[k]["wall"].append(wall)
+    out: dict = {"options": opts, "n": nlp.n, "m": nlp.m}
+    for k, r in last.items():
+        its = max(r.iterations, 1)
+        out[k] = {
             "status": r.status,
             "iterations": int(r.iterations),
             "objective": float(r.objective),
-            "solve_s": r.solve_time_s,
-            "ms_per_iteration": r.solve_time_s / max(r.iterations, 1) * 1e3,
-            "q": np.asarray(prob.full(r.x))[:, 0:5],
+            "cpu_ms_per_iteration": [c / its * 1e3 for c in samples[k]["cpu"]],
+            "wall_ms_per_iteration": [w / its * 1e3 for w in samples[k]["wall"]],
+            "cpu_ms_per_iteration_median": float(np.median(samples[k]["cpu"])) / its * 1e3,
+            "wall_ms_per_iteration_median": float(np.median(samples[k]["wall"])) / its * 1e3,
+            **(ipopt_counts(r.log or "") if k == "ipopt" else ipm_counts(r)),
         }
-    a, b = out["ipm"], out["ipopt"]
-    out["objective_rel_diff"] = rel_diff(a["objective"], b["objective"])
-    out["max_abs_dq_rad"] = float(np.max(np.abs(a.pop("q") - b.pop("q"))))
-    out["iteration_ratio_ipm_over_ipopt"] = a["iterations"] / max(b["iterations"], 1)
+    a, c = last["ipm"], last["ipopt"]
+    out["objective_rel_diff"] = abs(a.objective - c.objective) / max(abs(c.objective), 1e-12)
+    out["max_abs_dx"] = float(np.max(np.abs(np.asarray(a.x) - np.asarray(c.x))))
+    for k in ("ipm", "ipm_cli"):
+        for t in ("cpu", "wall"):
+            out[f"ratio_{k}_over_ipopt_{t}"] = (
+                out[k][f"{t}_ms_per_iteration_median"] / out["ipopt"][f"{t}_ms_per_iteration_median"]
+            )
     return out
 
 
-# IPOPT options that change only how MUMPS scales and pivots, i.e. the rounding of every step
+def print_stage2(res: dict) -> None:
+    print(
+        f"{'problem':8s} {'IPM its':>7s} {'IPOPT its':>9s} | {'ms/it CPU: IPM':>14s} {'IPM cli':>7s} {'IPOPT':>6s}"
+        f" {'ratio':>5s} {'cli':>5s} | {'wall ratio':>10s} | {'fact/it':>7s} {'trials/it':>9s} {'IPOPT f/it':>10s}"
+        f" {'soc':>4s} {'resto':>5s} | {'rel obj':>8s}"
+    )
+    for name, r in res.items():
+        a, c, cl = r["ipm"], r["ipopt"], r["ipm_cli"]
+        k, kc = max(a["iterations"], 1), max(c["iterations"], 1)
+        print(
+            f"{name:8s} {a['iterations']:7d} {c['iterations']:9d} | {a['cpu_ms_per_iteration_median']:14.1f}"
+            f" {cl['cpu_ms_per_iteration_median']:7.1f} {c['cpu_ms_per_iteration_median']:6.1f}"
+            f" {r['ratio_ipm_over_ipopt_cpu']:5.2f} {r['ratio_ipm_cli_over_ipopt_cpu']:5.2f} |"
+            f" {r['ratio_ipm_over_ipopt_wall']:10.2f} | {a['factorizations'] / k:7.2f} {a['trial_points'] / k:9.2f}"
+            f" {(c['f'] or 0) / kc:10.2f} {a['soc_steps']:4d} {a['restoration_iterations']:5d} |"
+            f" {r['objective_rel_diff']:8.1e}"
+        )
+
+
+# ----------------------------------------------------------------------------- compile
+def cold_compile(name: str, ref_dir: pathlib.Path, python: str = sys.executable) -> dict:
+    """``jaxhumanoid solve ... --solver ipm`` by the interpreter ``python`` in a fresh process with
+    an empty compilation cache: the compile time of each stage (its report) and the process's
+    CPU and wall time."""
+    task = ["--task-file", str(ref_dir / f"{name[4:]}.toml")] if name.startswith("ref:") else ["--task", name]
+    with tempfile.TemporaryDirectory() as tmp:
+        env = {**os.environ, "JAXHUMANOID_CACHE": str(pathlib.Path(tmp) / "cache")}
+        cmd = [python, "-m", "jaxhumanoid", "solve", *task, "--solver", "ipm", "--quiet", "--out", tmp]
+        before = os.times()
+        t0 = time.perf_counter()
+        subprocess.run(cmd, env=env, check=False, capture_output=True)
+        wall = time.perf_counter() - t0
+        after = os.times()
+        report = json.loads((pathlib.Path(tmp) / "report.json").read_text())
+    stages = [
+        {"name": s["name"], "compile_s": s["compile_time_s"], "iterations": s["iterations"]} for s in report["stages"]
+    ]
+    ipm = [s for s in stages if s["name"].startswith("stage 2") or name.startswith("ref:")]
+    return {
+        "stages": stages,
+        "compile_s": report["compile_time_s"],
+        "compile_s_ipm_stages": sum(s["compile_s"] for s in ipm),
+        "process_cpu_s": (after.children_user + after.children_system)
+        - (before.children_user + before.children_system),
+        "process_wall_s": wall,
+    }
+
+
+def compile_part(tasks: list[str], runs: int, ref_dir: pathlib.Path, baseline: str | None) -> dict:
+    """``cold_compile`` of each task ``runs`` times, in alternation with the interpreter
+    ``baseline`` (another environment, e.g. the last release's) where given (rows "<task> baseline")."""
+    srcs = {"": sys.executable} if baseline is None else {"": sys.executable, " baseline": baseline}
+    rows: dict = {f"{t}{label}": [] for t in tasks for label in srcs}
+    for _ in range(runs):
+        for t in tasks:
+            for label, src in srcs.items():
+                rows[f"{t}{label}"].append(cold_compile(t, ref_dir, src))
+    out = {}
+    print(
+        f"{'cold solve --solver ipm':24s} {'compile s (median)':>18s} {'IPM stages':>10s} {'process CPU s':>13s} {'runs':>24s}"
+    )
+    for t, r in rows.items():
+        out[t] = {
+            "runs": r,
+            **{
+                f"{k}_median": float(np.median([x[k] for x in r]))
+                for k in ("compile_s", "compile_s_ipm_stages", "process_cpu_s")
+            },
+        }
+        each = ", ".join(f"{x['compile_s']:.1f}" for x in r)
+        print(
+            f"{t:24s} {out[t]['compile_s_median']:18.1f} {out[t]['compile_s_ipm_stages_median']:10.1f}"
+            f" {out[t]['process_cpu_s_median']:13.1f} {each:>24s}"
+        )
+    return out
+
+
+# ----------------------------------------------------------------------------- spread, batch
 ROUNDING_VARIANTS = ({}, {"mumps_scaling": 0}, {"mumps_pivtol": 1e-5}, {"mumps_permuting_scaling": 0})
 
 
 def rounding_spread(task: str) -> dict:
-    """Stage 1 of 2S (the same NLP and start for all) with IPOPT under ``ROUNDING_VARIANTS`` and
-    with the IPM: the spread of IPOPT's own iteration counts and optima when only the rounding of
-    its linear solves changes, the yardstick for the IPM's count on these chaotic NLPs."""
+    """Stage 1 of ``stage1_problem(task)`` with IPOPT under ``ROUNDING_VARIANTS`` and with the IPM."""
     first, _ = stage1_problem(task)
     runs = []
     for extra in ROUNDING_VARIANTS:
@@ -135,205 +259,70 @@ def rounding_spread(task: str) -> dict:
             {"options": extra, "status": r.status, "iterations": int(r.iterations), "objective": float(r.objective)}
         )
     r = solve_ipm(first.nlp, first.p, first.bounds, options=strat.STAGE1_DEFAULTS)
-    its = [v["iterations"] for v in runs]
-    objs = sorted({round(v["objective"], 6) for v in runs})
+    print(f"{task}: IPOPT its {[v['iterations'] for v in runs]}, IPM its {r.iterations} objective {r.objective:.4g}")
     return {
         "ipopt": runs,
-        "ipopt_iterations_min": min(its),
-        "ipopt_iterations_max": max(its),
-        "ipopt_distinct_optima": objs,
         "ipm": {"status": r.status, "iterations": int(r.iterations), "objective": float(r.objective)},
-        "ipm_over_ipopt_max": int(r.iterations) / max(its),
-    }
-
-
-def whole_2s(task: str, runs: int) -> dict:
-    res = {}
-    sols = {}
-    for solver in ("ipm", "ipopt"):
-        times, compile_s, sol = [], None, None
-        for _ in range(runs):
-            sol = strat.solve(bench_task(task), SCHEME, solver=solver)
-            times.append(sum(s.solve_time_s for s in sol.stages))
-            compile_s = sum(s.compile_time_s for s in sol.stages) if compile_s is None else compile_s
-        sols[solver] = sol
-        res[solver] = {
-            "status": [s.status for s in sol.stages],
-            "iterations": [s.iterations for s in sol.stages],
-            "solve_s_median": float(np.median(times)),
-            "setup_and_compile_s_first_run": compile_s,
-            "objective": sol.objective,
-        }
-    a, b = sols["ipm"], sols["ipopt"]
-    res["objective_rel_diff"] = rel_diff(a.objective, b.objective)
-    res["max_abs_dq_rad"] = float(np.max(np.abs(a.q - b.q)))
-    return res
-
-
-_CHILD = r"""
-import json, sys
-import jaxhumanoid
-from jaxhumanoid.runtime import enable_compilation_cache
-from jaxhumanoid.ocp.scheme import parse_scheme
-from jaxhumanoid.solvers.ipm import solve_ipm
-from jaxhumanoid.strategy.problem import build_problem, with_sweeps
-enable_compilation_cache(sys.argv[1])
-prob = with_sweeps(build_problem("T1", parse_scheme("A,F+C,2S"), N=100), sys.argv[3])
-progress = (lambda k, f, inf: None) if sys.argv[2] == "stepped" else None
-r = solve_ipm(prob.nlp, prob.p, prob.bounds, options={"max_iter": 1}, progress=progress)
-print(json.dumps({"compile_s": r.compile_time_s}))
-"""
-
-
-def compile_times(mode: str = "whole", sweeps: str = "joint") -> dict:
-    """IPM compile time in two fresh processes sharing a new persistent cache: cold, then warm.
-    ``mode`` "whole": the solve as one program; "stepped": with a progress callback, as the
-    command line runs it (start, one iteration and finish compiled apart). ``sweeps``: the
-    derivatives' sweeps (``with_sweeps``)."""
-    out = {}
-    with tempfile.TemporaryDirectory() as cache:
-        for label in ("cold", "warm"):
-            t0 = time.perf_counter()
-            p = subprocess.run(
-                [sys.executable, "-c", _CHILD, cache, mode, sweeps], capture_output=True, text=True, check=True
-            )
-            out[f"{label}_compile_s"] = json.loads(p.stdout.strip().splitlines()[-1])["compile_s"]
-            out[f"{label}_process_s"] = time.perf_counter() - t0
-    return out
-
-
-def compile_spread(runs: int, sweeps: tuple[str, ...] = ("joint",)) -> dict:
-    """``compile_times`` of both modes and each of ``sweeps``, alternating, ``runs`` times: every
-    run and the medians, keyed "whole", "stepped" (joint sweeps) and "whole grouped", ...."""
-    cases = {(m if sw == "joint" else f"{m} {sw}"): (m, sw) for sw in sweeps for m in ("whole", "stepped")}
-    rows: dict[str, list[dict]] = {label: [] for label in cases}
-    for _ in range(runs):
-        for label, r in rows.items():
-            r.append(compile_times(*cases[label]))
-    return {
-        label: {
-            "runs": r,
-            **{f"{k}_median": float(np.median([x[k] for x in r])) for k in r[0]},
-        }
-        for label, r in rows.items()
     }
 
 
 def batch_throughput(batch: int) -> dict:
-    """A vmap batch of stage-1 problems of T1 with log-normally perturbed weights (sigma = 0.2)."""
+    """A vmap batch of T1 stage-1 problems with log-normally perturbed weights (sigma = 0.2)."""
     prob, _ = stage1_problem("T1")
     rng = np.random.default_rng(0)
     weights = np.asarray(prob.p.weights)[None] * np.exp(0.2 * rng.standard_normal((batch, np.size(prob.p.weights))))
     p_batch = jax.tree.map(lambda a: jnp.broadcast_to(a, (batch,) + jnp.shape(a)), prob.p)
     p_batch = dataclasses.replace(p_batch, weights=jnp.asarray(weights))
     opts = dict(strat.STAGE1_DEFAULTS)
-    batch_solve_ipm(prob.nlp, jax.tree.map(lambda a: a[:batch], p_batch), prob.bounds, options=opts)  # compile
-    t0 = time.perf_counter()
-    res_b = batch_solve_ipm(prob.nlp, p_batch, prob.bounds, options=opts)
-    t_batch = time.perf_counter() - t0
-    p_one = jax.tree.map(lambda a: a[0], p_batch)
-    solve_ipm(prob.nlp, p_one, prob.bounds, options=opts)  # compile
-    t0 = time.perf_counter()
-    res_s = [
-        solve_ipm(prob.nlp, jax.tree.map(lambda a: a[i], p_batch), prob.bounds, options=opts) for i in range(batch)
-    ]
-    t_seq = time.perf_counter() - t0
+    batch_solve_ipm(prob.nlp, p_batch, prob.bounds, options=opts)  # compile
+    res_b, _, t_batch = timed(lambda: batch_solve_ipm(prob.nlp, p_batch, prob.bounds, options=opts))
+    members = [jax.tree.map(lambda a, i=i: a[i], p_batch) for i in range(batch)]
+    solve_ipm(prob.nlp, members[0], prob.bounds, options=opts)  # compile
+    res_s, _, t_seq = timed(lambda: [solve_ipm(prob.nlp, q, prob.bounds, options=opts) for q in members])
+    print(f"vmap batch of {batch}: {t_batch:.1f} s against {t_seq:.1f} s one by one")
     return {
-        "problem": f"T1 stage 1 (pseudo-static, N={strat.STAGE1_N}), weights x exp(0.2 N(0,1))",
         "batch": batch,
         "batch_s": t_batch,
         "sequential_s": t_seq,
-        "speedup_batch_over_sequential": t_seq / t_batch,
         "batch_success": int(sum(r.success for r in res_b)),
         "sequential_success": int(sum(r.success for r in res_s)),
-        "batch_iterations_max": int(max(r.iterations for r in res_b)),
-        "sequential_iterations_sum": int(sum(r.iterations for r in res_s)),
     }
 
 
 def main():
     ap = argparse.ArgumentParser()
-    ap.add_argument("--tasks", nargs="*", default=["T1", "T2", "T3", "T4"])
+    ap.add_argument("--problems", nargs="+", default=["T1", "T2", "T3", "T4", "ref:T1", "ref:T2", "ref:T3", "ref:T4"])
     ap.add_argument("--runs", type=int, default=3)
-    ap.add_argument("--iters", type=int, default=40)
+    ap.add_argument("--compile-tasks", nargs="+", default=["T1"])
+    ap.add_argument("--compile-runs", type=int, default=3)
+    ap.add_argument(
+        "--compile-baseline", help="the python of another environment (e.g. with the last release) to compare with"
+    )
+    ap.add_argument(
+        "--parts", nargs="+", default=["stage2", "compile"], choices=["stage2", "compile", "spread", "batch"]
+    )
+    ap.add_argument("--spread-tasks", nargs="+", default=["T1", "T2", "T3", "T4"])
     ap.add_argument("--batch", type=int, default=32)
+    ap.add_argument("--ref-dir", type=pathlib.Path, default=REF_DIR)
     ap.add_argument("--out", default="results/bench_ipm.json")
-    ap.add_argument("--skip-compile", action="store_true")
-    ap.add_argument("--skip-batch", action="store_true")
-    ap.add_argument("--skip-per-iteration", action="store_true")
-    ap.add_argument("--skip-spread", action="store_true")
-    ap.add_argument("--compile-only", type=int, default=0, metavar="RUNS", help="only the compile times, RUNS times")
-    ap.add_argument("--compile-sweeps", nargs="+", default=["joint"], choices=SWEEPS, help="sweeps to compile with")
     args = ap.parse_args()
+    record: dict = {"git": git_state(), "environment": environment(), "argv": sys.argv[1:], "scheme": SCHEME}
+    if "compile" in args.parts:  # first: fresh processes, before this one loads the machine
+        record["compile"] = compile_part(args.compile_tasks, args.compile_runs, args.ref_dir, args.compile_baseline)
     enable_compilation_cache()
-    results = {"omp_num_threads": os.environ.get("OMP_NUM_THREADS")}
-    if args.compile_only:
-        results["compile_spread"] = c = compile_spread(args.compile_only, tuple(args.compile_sweeps))
-        for mode, r in c.items():
-            each = ", ".join(f"{x['cold_compile_s']:.1f}" for x in r["runs"])
-            print(
-                f"IPM compile at N=100, {mode}: cold {r['cold_compile_s_median']:.1f} s ({each}), "
-                f"warm {r['warm_compile_s_median']:.1f} s"
-            )
-        write_record({"scheme": SCHEME, "N": 100, "results": results}, args.out)
-        return
-
-    if not args.skip_per_iteration:
-        results["per_iteration_N100"] = pi = per_iteration(args.runs, args.iters)
-        print(
-            f"per iteration at N=100: IPM {pi['ipm']['ms_per_iteration_median']:.1f} ms, "
-            f"IPOPT {pi['ipopt']['ms_per_iteration_median']:.1f} ms, ratio {pi['ratio_ipm_over_ipopt']:.2f}"
-        )
-
-    results["whole_2s"] = {}
-    print(
-        f"{'task':5s} {'IPM status':>34s} {'its':>9s} {'s':>6s} | {'IPOPT its':>9s} {'s':>6s} | {'rel obj':>8s} {'max dq':>7s}"
-    )
-    for task in args.tasks:
-        r = results["whole_2s"][task] = whole_2s(task, args.runs)
-        a, b = r["ipm"], r["ipopt"]
-        print(
-            f"{task:5s} {'+'.join(s[:16] for s in a['status']):>34s} {'+'.join(map(str, a['iterations'])):>9s} "
-            f"{a['solve_s_median']:6.2f} | {'+'.join(map(str, b['iterations'])):>9s} {b['solve_s_median']:6.2f} | "
-            f"{r['objective_rel_diff']:8.1e} {r['max_abs_dq_rad']:7.3f}"
-        )
-
-    results["stage2_same_start"] = {}
-    print(
-        f"{'task':5s} {'stage 2 from IPOPT stage 1: IPM':>34s} {'its':>5s} {'ms/it':>6s} | {'IPOPT its':>9s} {'ms/it':>6s} | {'rel obj':>8s} {'max dq':>7s}"
-    )
-    for task in args.tasks:
-        r = results["stage2_same_start"][task] = stage2_same_start(task)
-        a, b = r["ipm"], r["ipopt"]
-        print(
-            f"{task:5s} {a['status'][:34]:>34s} {a['iterations']:5d} {a['ms_per_iteration']:6.1f} | "
-            f"{b['iterations']:9d} {b['ms_per_iteration']:6.1f} | {r['objective_rel_diff']:8.1e} {r['max_abs_dq_rad']:7.1e}"
-        )
-
-    if not args.skip_spread:
-        results["stage1_rounding_spread"] = {}
-        print(
-            f"{'task':5s} {'stage 1: IPOPT its (rounding variants)':>40s} {'optima':>8s} | {'IPM its':>7s} {'objective':>10s}"
-        )
-        for task in args.tasks:
-            r = results["stage1_rounding_spread"][task] = rounding_spread(task)
-            print(
-                f"{task:5s} {' '.join(str(v['iterations']) for v in r['ipopt']):>40s} {len(r['ipopt_distinct_optima']):8d} | "
-                f"{r['ipm']['iterations']:7d} {r['ipm']['objective']:10.4g}"
-            )
-
-    if not args.skip_compile:
-        results["compile"] = c = compile_times()
-        print(
-            f"IPM compile at N=100: cold {c['cold_compile_s']:.1f} s, warm (persistent cache) {c['warm_compile_s']:.1f} s"
-        )
-    if not args.skip_batch:
-        results["batch"] = bt = batch_throughput(args.batch)
-        print(
-            f"vmap batch of {bt['batch']}: {bt['batch_s']:.1f} s vs sequential {bt['sequential_s']:.1f} s "
-            f"(x{bt['speedup_batch_over_sequential']:.2f}); success {bt['batch_success']}/{bt['batch']}"
-        )
-    write_record({"scheme": SCHEME, "N": 100, "results": results}, args.out)
+    if "stage2" in args.parts:
+        record["stage2"] = res = {}
+        for name in args.problems:
+            res[name] = stage2_case(name, args.runs, args.ref_dir)
+        print_stage2(res)
+    if "spread" in args.parts:
+        record["stage1_rounding_spread"] = {t: rounding_spread(t) for t in args.spread_tasks}
+    if "batch" in args.parts:
+        record["batch"] = batch_throughput(args.batch)
+    out = pathlib.Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(record, indent=2, default=str) + "\n")
+    print(f"wrote {out}")
 
 
 if __name__ == "__main__":

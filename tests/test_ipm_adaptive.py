@@ -13,7 +13,7 @@ import pytest
 
 from jaxhumanoid.ocp.nlp import Bounds
 from jaxhumanoid.solvers.ipm import batch_solve_ipm, mu_oracle, solve_ipm
-from jaxhumanoid.solvers.ipm.algorithm import initial_state
+from jaxhumanoid.solvers.ipm.algorithm import start_at
 from jaxhumanoid.solvers.ipm.direction import kkt_factor
 from jaxhumanoid.solvers.ipm.options import make_options
 from jaxhumanoid.solvers.ipm.problem import make_context, make_prob
@@ -42,7 +42,7 @@ def one_dim():
     o = make_options({"mu_strategy": "adaptive", "nlp_scaling_method": "none", "bound_relax_factor": 0.0})
     ctx = make_context(nlp, o)
     P, x, raw = make_prob(ctx, bounds.x0, bounds.xl, bounds.xu, bounds.gl, bounds.gu, None)
-    return ctx, P, initial_state(ctx, P, x, raw)
+    return ctx, P, start_at(ctx, P, x, raw)[0]  # checked, as the loop starts from it
 
 
 def quality_1d(sigma, tau=0.99):

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from jaxhumanoid.solvers.ipm import barrier, inertia, linesearch, restoration, step, termination
-from jaxhumanoid.solvers.ipm.algorithm import initial_state
+from jaxhumanoid.solvers.ipm.algorithm import start_at
 from jaxhumanoid.solvers.ipm.filter import filter_add, filter_ok, filter_reset
 from jaxhumanoid.solvers.ipm.options import IPMOptions
 from jaxhumanoid.solvers.ipm.problem import make_context, make_prob
@@ -250,7 +250,7 @@ def shifted():
     )
     ctx = make_context(nlp, O)
     P, x, raw = make_prob(ctx, jnp.zeros(2), [-INF] * 2, [INF] * 2, [0.0, 0.0], [0.0, 0.0], None)
-    return ctx, P, initial_state(ctx, P, x, raw)
+    return ctx, P, start_at(ctx, P, x, raw)[0]
 
 
 def test_restoration_entry_initialises_p_n_by_ipopts_formula(shifted):

@@ -22,7 +22,6 @@ import jax
 import numpy as np
 
 from jaxhumanoid.model.params import ContactParams
-from jaxhumanoid.ocp import transcription as tr
 from jaxhumanoid.ocp.scheme import parse_scheme
 from jaxhumanoid.ocp.tasks import NO_FORCE_LIMIT, Task, with_force_limit
 from jaxhumanoid.runtime import environment
@@ -102,11 +101,10 @@ def stage1_problem(task: str, N1: int = strat.STAGE1_N) -> tuple[Problem, Proble
 
 
 def stage2_warm_start(task: str) -> tuple[Problem, np.ndarray]:
-    """The stage-2 problem and its 2S start from IPOPT's stage-1 solution (interpolated)."""
+    """The stage-2 problem and its 2S start from IPOPT's stage-1 solution (``stage_two_start``)."""
     first, prob = stage1_problem(task)
     r1 = solve_ipopt(first.nlp, first.p, first.bounds, options=strat.STAGE1_DEFAULTS)
-    Zf = strat.interpolate_full(first.full(r1.x), float(prob.p.T), prob.layout)
-    return prob, np.clip(np.asarray(tr.free_from_full(prob.layout, Zf)), prob.bounds.xl, prob.bounds.xu)
+    return prob, strat.stage_two_start(first.full(r1.x), prob)[0]
 
 
 def git_state(root: pathlib.Path | str = REPO) -> dict[str, Any]:

@@ -53,7 +53,7 @@ from jaxhumanoid.solvers.ipm.state import (
     tree_where,
 )
 from jaxhumanoid.solvers.ipm.step import dual_steps, frac_dual, kappa_sigma_reset, ls_multipliers
-from jaxhumanoid.solvers.ipm.termination import check, errors, step_status
+from jaxhumanoid.solvers.ipm.termination import check, empty_terms, errors_at, step_status
 from jaxhumanoid.solvers.status import Status
 
 
@@ -103,6 +103,7 @@ def initial_state(ctx: Context, P: Prob, x, raw: Evals) -> State:
         tiny_count=jnp.zeros((), jnp.int32),
         resto_iters=jnp.zeros((), jnp.int32),
         hist=hist,
+        terms=empty_terms(n),
         rs=inactive_resto(n, m, o.filter_size),
         wd=Watchdog(jnp.zeros((), jnp.int32), z0 > 0, jnp.zeros((), jnp.int32), it, ev, z0, z0, z0, z0 > 0),
         cur_acc=jnp.zeros((), bool),
@@ -140,7 +141,7 @@ def barrier_update(ctx: Context, P: Prob, S: State):
         ctx.o,
         S.mu,
         barrier.mu_floor(ctx.o, P),
-        lambda mu_: errors(ctx, P, it, ev, mu_, R).Emu,
+        lambda mu_: errors_at(ctx, P, it, ev, R, S.terms, mu_).Emu,
         (S.tiny_count > 0) & ~R.on,
         R.fresh,
     )
@@ -343,6 +344,12 @@ def iteration(ctx: Context, P: Prob, S: State):
 def start(ctx: Context, x0, xl, xu, gl, gu, p) -> tuple[State, Prob]:
     """The scaled problem and the checked initial state (iteration 0) from the user's data."""
     P, x, raw = make_prob(ctx, x0, xl, xu, gl, gu, p)
+    return start_at(ctx, P, x, raw)
+
+
+def start_at(ctx: Context, P: Prob, x, raw: Evals) -> tuple[State, Prob]:
+    """The checked initial state (iteration 0) at x of the scaled problem P, given the unscaled
+    evaluations ``raw`` there."""
     S = initial_state(ctx, P, x, raw)
     return check(ctx, P, S, initial_info(S), running()), P
 

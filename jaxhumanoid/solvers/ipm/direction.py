@@ -42,13 +42,14 @@ class Newton(NamedTuple):
 
 def kkt_factor(ctx: Context, P: Prob, S: State, mu) -> Inertia:
     """The matrix of (13) at S's iterate, factored with inertia correction; ``mu`` enters the
-    regularisation delta_c and, in the restoration phase, the proximity term eta * diag(dr)
-    added to the Hessian of the constraints' part."""
+    regularisation delta_c. In the restoration phase the Hessian holds the proximity term
+    eta * diag(dr) for S.mu, the barrier parameter before this iteration's update: IPOPT
+    evaluates the Hessian before it updates mu (its gradient and merit take the new mu)."""
     it, R = S.it, S.rs
     rr = R.on & ~P.free
     Wvals = hessian(ctx, P, it.x, it.y, R.on)
     sig_x, sig_s = sigmas(P, it)
-    prox = prox_weight(ctx.o, R, mu)
+    prox = prox_weight(ctx.o, R, S.mu)
     sig_p = jnp.where(rr, R.zp / R.p, 0.0)
     sig_n = jnp.where(rr, R.zn / R.n, 0.0)
     return inertia_corrected_factor(

@@ -9,11 +9,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxhumanoid.ocp.nlp import NLP, Bounds
-from jaxhumanoid.solvers.ipm.algorithm import advance, solve, start
+from jaxhumanoid.solvers.ipm.algorithm import advance, solve, start_at
 from jaxhumanoid.solvers.ipm.log import format_log, trim_history
 from jaxhumanoid.solvers.ipm.options import IPMOptions, as_float64, make_options
-from jaxhumanoid.solvers.ipm.problem import make_context, solution
-from jaxhumanoid.solvers.ipm.state import Solution
+from jaxhumanoid.solvers.ipm.problem import make_context, prepare, scaled_prob, solution
+from jaxhumanoid.solvers.ipm.state import Evals, Solution
 from jaxhumanoid.solvers.result import IterationCallback, NLPResult, constraint_violation
 from jaxhumanoid.solvers.status import SUCCESS, Status
 
@@ -100,46 +100,75 @@ def _compile_and_run(core, args):
 
 
 def _stepped_core(nlp: NLP):
-    """The solver core in three jitted parts, cached in ``nlp.cache``: the checked initial state,
-    one iteration (``advance`` to k + 1) and the unscaled solution. The loop body is the one of
-    ``_core``, so the iterates are the same; the host sees every iterate."""
+    """The solver core in jitted parts, cached in ``nlp.cache``: the bounds and starting point,
+    the checked initial state from the NLP's evaluations there, iterations up to a given count
+    (``advance``, its state argument donated, so that the history and the other unchanged arrays
+    are not copied) and the unscaled solution. The evaluations at the start are the NLP's own
+    jitted functions (``NLP.jitted``), which IPOPT compiles too, so that a solve after IPOPT's on
+    the same NLP compiles no copy of them. The loop body is the one of ``_core``, so the iterates
+    are the same; the host sees the state between calls."""
     key = ("ipm", "stepped")
     if key not in nlp.cache:
+
+        def start_(B, p, at_x0, raw, o):
+            ctx = make_context(nlp, o)
+            return start_at(ctx, scaled_prob(ctx, B, p, *at_x0), B.x, raw)
+
         nlp.cache[key] = {
-            "start": jax.jit(lambda x0, xl, xu, gl, gu, p, o: start(make_context(nlp, o), x0, xl, xu, gl, gu, p)),
-            "advance": jax.jit(lambda P, S, o: advance(make_context(nlp, o), P, S, S.k + 1)),
+            "prepare": jax.jit(lambda x0, xl, xu, gl, gu, o: prepare(make_context(nlp, o), x0, xl, xu, gl, gu)),
+            "start": jax.jit(start_),
+            "advance": jax.jit(
+                lambda P, S, o, k_stop: advance(make_context(nlp, o), P, S, k_stop), donate_argnums=(1,)
+            ),
             "finish": jax.jit(lambda P, S, o: solution(make_context(nlp, o), S, P)),
+            "nlp": nlp.jitted(),
             "compiled": set(),
         }
     return nlp.cache[key]
 
 
+# a call of the stepped core runs about this long (s) before the host reports its iterations
+REPORT_INTERVAL_S = 0.5
+MAX_CHUNK = 100
+
+
 def _run_stepped(core, args, progress: IterationCallback):
-    """``_compile_and_run`` one iteration at a time, calling ``progress(k, objective, inf_pr)``
-    after each. The first call of each part compiles it; that time counts as compile time."""
-    opts = args[-1]
+    """``_compile_and_run`` a chunk of iterations at a time, calling ``progress(k, objective,
+    inf_pr)`` for every iteration k from the history after each chunk. A chunk lasts about
+    ``REPORT_INTERVAL_S``: a call costs about a millisecond besides its iterations, a tenth of an
+    iteration of the humanoid's stage 2. The first call of each part compiles it; that time counts
+    as compile time."""
+    x0, xl, xu, gl, gu, p, opts = args
     compile_time, solve_time = 0.0, 0.0
 
-    def call(name, *a):
+    def call(name, fn, *a):
         nonlocal compile_time, solve_time
         t0 = time.perf_counter()
-        out = jax.block_until_ready(core[name](*a))
+        out = jax.block_until_ready(fn(*a))
         dt = time.perf_counter() - t0
         if name in core["compiled"]:
             solve_time += dt
         else:
             core["compiled"].add(name)
             compile_time += dt
-        return out
+        return out, dt
 
-    S, P = call("start", *args)
-    while True:
-        k = int(S.k)
-        progress(k, float(S.hist["obj"][k]), float(S.hist["inf_pr"][k]))
-        if bool(S.done):
-            break
-        S = call("advance", P, S, opts)
-    out = call("finish", P, S, opts)
+    B, _ = call("prepare", core["prepare"], x0, xl, xu, gl, gu, opts)
+    fns = core["nlp"]
+    at_x0, _ = call("grad_jac", fns.grad_jac, B.x0, p)
+    (f, g), _ = call("fg", fns.fg, B.x, p)
+    (grad, jac), _ = call("grad_jac", fns.grad_jac, B.x, p)
+    (S, P), _ = call("start", core["start"], B, p, at_x0, Evals(f, g, grad, jac), opts)
+    k_done, chunk = 0, 1
+    progress(0, float(S.hist["obj"][0]), float(S.hist["inf_pr"][0]))
+    while not bool(S.done):
+        S, dt = call("advance", core["advance"], P, S, opts, jnp.asarray(k_done + chunk, jnp.int32))
+        k, obj, inf_pr = jax.device_get((S.k, S.hist["obj"], S.hist["inf_pr"]))
+        for j in range(k_done + 1, int(k) + 1):
+            progress(j, float(obj[j]), float(inf_pr[j]))
+        chunk = int(np.clip(REPORT_INTERVAL_S * (int(k) - k_done) / max(dt, 1e-9), 1, MAX_CHUNK))
+        k_done = int(k)
+    out, _ = call("finish", core["finish"], P, S, opts)
     return jax.tree.map(np.asarray, out), solve_time, compile_time
 
 
@@ -156,8 +185,8 @@ def solve_ipm(
     The jitted core is compiled once per (NLP, integer/boolean/string options, argument shapes)
     and cached; float options (tolerances, mu_init, ...) are runtime inputs and never recompile.
     The compile time is reported in ``compile_time_s`` (0 on a cache hit). ``progress`` is called
-    with (iteration, objective, primal infeasibility) after every iteration; the solve then runs
-    one jitted iteration at a time (``_stepped_core``), with the same iterates.
+    with (iteration, objective, primal infeasibility) for every iteration; the solve then runs a
+    chunk of jitted iterations at a time (``_stepped_core``), with the same iterates.
     """
     opts = make_options(options)
     x0 = np.asarray(bounds.x0 if x0 is None else x0, dtype=float)

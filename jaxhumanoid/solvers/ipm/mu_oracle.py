@@ -65,7 +65,7 @@ from jaxhumanoid.solvers.ipm.options import IPMOptions
 from jaxhumanoid.solvers.ipm.problem import Context, jt_mult, slacks, theta_of
 from jaxhumanoid.solvers.ipm.state import AdaptiveMu, Direction, Iterate, Prob, State, tree_where
 from jaxhumanoid.solvers.ipm.step import dual_steps, frac_dual, frac_to_boundary, solve_reduced
-from jaxhumanoid.solvers.ipm.termination import errors
+from jaxhumanoid.solvers.ipm.termination import errors_at
 
 GOLDEN = (3.0 - math.sqrt(5.0)) / 2.0
 UNKNOWN = -100.0  # a quality-function value not evaluated yet (q >= 0), IPOPT's marker
@@ -126,7 +126,7 @@ def adaptive_mode(ctx: Context, P: Prob, S: State):
     Returns (State with ``am`` and the filter updated, mu to factor with (the previous mu in
     free mode), tau, number of barrier updates (0/1), free mode)."""
     o, it, ev, A = ctx.o, S.it, S.ev, adaptive_state(S)
-    err = errors(ctx, P, it, ev, S.mu, S.rs)
+    err = errors_at(ctx, P, it, ev, S.rs, S.terms, S.mu)
     theta = theta_of(P, ev.g, it.s)
     tiny = S.tiny_count > 0
     avg, n_c = avrg_compl(P, it)

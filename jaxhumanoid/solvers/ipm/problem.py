@@ -157,13 +157,29 @@ def scaling(ctx: Context, g0, j0, fixed):
     return sf, sg
 
 
-def make_prob(ctx: Context, x0, xl, xu, gl, gu, p) -> tuple[Prob, jax.Array, Evals]:
-    """The scaled problem's data, the starting point (fixed variables at their value, pushed
-    into the bounds, Sec. 3.6) and the unscaled evaluations there.
+class Prepared(NamedTuple):
+    """The problem's bounds as the method sees them (``prepare``), before the scaling."""
 
-    Finite variable and inequality bounds are relaxed (``bound_relax_factor``); like IPOPT 3.14
+    xl: jax.Array  # (n,) relaxed variable bounds
+    xu: jax.Array
+    gl: jax.Array  # (m,) relaxed constraint bounds (unscaled)
+    gu: jax.Array
+    hxl: jax.Array  # (n,) finite lower bound on x (not fixed)
+    hxu: jax.Array
+    fixed: jax.Array
+    eq: jax.Array
+    hsl: jax.Array
+    hsu: jax.Array
+    free: jax.Array
+    x0: jax.Array  # the user's start with fixed variables at their value
+    x: jax.Array  # the starting point: x0 pushed into the bounds (Sec. 3.6)
+
+
+def prepare(ctx: Context, x0, xl, xu, gl, gu) -> Prepared:
+    """The bounds' masks, finite bounds relaxed (``bound_relax_factor``) and the starting point:
+    fixed variables at their value, pushed into the bounds (Sec. 3.6). Like IPOPT 3.14
     (honor_original_bounds = no) the final x is not projected back, which would break the
-    stationarity of the returned multipliers. The scaling is that of x0 before the push."""
+    stationarity of the returned multipliers."""
     o = ctx.o
     x0, xl, xu, gl, gu = (jnp.asarray(a, dtype=float) for a in (x0, xl, xu, gl, gu))
     fixed = xl == xu
@@ -178,10 +194,22 @@ def make_prob(ctx: Context, x0, xl, xu, gl, gu, p) -> tuple[Prob, jax.Array, Eva
     free = ~eq & ~hsl & ~hsu
     x0 = jnp.where(fixed, xl, x0)
     x = push(x0, xl, xu, hxl, hxu, o.bound_push, o.bound_frac)
-    ev = raw_evals(ctx, jnp.stack([x0, x]), p)
-    sf, sg = scaling(ctx, ev.grad[0], ev.jac[0], fixed)
-    P = Prob(p, xl, xu, gl * sg, gu * sg, hxl, hxu, fixed, eq, hsl, hsu, free, sf, sg)
-    return P, x, jax.tree.map(lambda a: a[1], ev)
+    return Prepared(xl, xu, gl, gu, hxl, hxu, fixed, eq, hsl, hsu, free, x0, x)
+
+
+def scaled_prob(ctx: Context, B: Prepared, p, grad0, jac0) -> Prob:
+    """The scaled problem's data, its scaling that of the gradient ``grad0`` and Jacobian values
+    ``jac0`` at x0 before the push (Sec. 3.8)."""
+    sf, sg = scaling(ctx, grad0, jac0, B.fixed)
+    return Prob(p, B.xl, B.xu, B.gl * sg, B.gu * sg, B.hxl, B.hxu, B.fixed, B.eq, B.hsl, B.hsu, B.free, sf, sg)
+
+
+def make_prob(ctx: Context, x0, xl, xu, gl, gu, p) -> tuple[Prob, jax.Array, Evals]:
+    """The scaled problem's data, the starting point (``prepare``) and the unscaled evaluations
+    there; the NLP's functions evaluated at x0 and x in one ``raw_evals``."""
+    B = prepare(ctx, x0, xl, xu, gl, gu)
+    ev = raw_evals(ctx, jnp.stack([B.x0, B.x]), p)
+    return scaled_prob(ctx, B, p, ev.grad[0], ev.jac[0]), B.x, jax.tree.map(lambda a: a[1], ev)
 
 
 def push(x, lo, hi, hlo, hhi, push_, frac):

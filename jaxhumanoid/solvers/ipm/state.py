@@ -208,6 +208,7 @@ class State(NamedTuple):
     rs: Resto
     wd: Watchdog
     hist: dict  # HIST_FIELDS -> (H,) arrays, row k = iteration k
+    terms: Any  # ``termination.ErrorTerms`` of the iterate (set by the termination check)
     am: AdaptiveMu | None = None
 
 

@@ -36,41 +36,43 @@ class Errors(NamedTuple):
     co_u: jax.Array
 
 
-def errors(ctx: Context, P: Prob, it: Iterate, ev: Evals, mu, R: Resto) -> Errors:
-    """Optimality errors (5) of the problem being solved (in the restoration phase, of the
-    restoration problem)."""
+class ErrorTerms(NamedTuple):
+    """The parts of the optimality errors (5) at an iterate that do not depend on mu, from which
+    ``errors_at`` gives the errors for any mu without the Jacobian product again: ``check``
+    keeps them in the state for the next iteration's barrier update."""
+
+    jt: jax.Array  # (n,) J^T y
+    dual_s: jax.Array  # dual infeasibility of the slack (and p, n) rows
+    primal: jax.Array  # constraint violation of the problem being solved
+    sd: jax.Array  # the multiplier scalings s_d, s_c of (5)
+    sc: jax.Array
+    c_max: jax.Array  # largest and smallest complementarity product on a finite bound (-inf,
+    c_min: jax.Array  # +inf without bounds): max_i |c_i - mu| = max(c_max - mu, mu - c_min)
+    pr_s: jax.Array  # the original problem's constraint violation, scaled and unscaled
+    pr_u: jax.Array
+
+
+def error_terms(ctx: Context, P: Prob, it: Iterate, ev: Evals, R: Resto) -> ErrorTerms:
+    """``ErrorTerms`` of the problem being solved (in the restoration phase, of the restoration
+    problem) at ``it``."""
     o = ctx.o
     x, s, y = it.x, it.s, it.y
     rr = R.on & ~P.free
     rho = o.resto_penalty_parameter
     dxl, dxu, dsl, dsu = slacks(P, x, s)
-    gf = objective_grad(o, R, ev.grad, x, mu)
-    gLx = jnp.where(P.fixed, 0.0, gf + jt_mult(ctx, ev.jac, y) - it.zl + it.zu)
     gLs = jnp.where(P.hsl | P.hsu, -y - it.vl + it.vu, 0.0)
     gLpn = jnp.where(rr, jnp.maximum(jnp.abs(rho - y - R.zp), jnp.abs(rho + y - R.zn)), 0.0)
-    dual = jnp.maximum(
-        jnp.maximum(jnp.max(jnp.abs(gLx), initial=0.0), jnp.max(jnp.abs(gLs), initial=0.0)), jnp.max(gLpn, initial=0.0)
-    )
     c_orig = constr_resid(P, ev.g, s)
-    primal = jnp.max(jnp.abs(resto_resid(P, R, ev.g, s, R.p, R.n)), initial=0.0)
-
-    def cmax(v, mask):
-        return jnp.max(jnp.where(mask, jnp.abs(v), 0.0), initial=0.0)
-
-    def compl(m_):
-        return jnp.max(
-            jnp.stack(
-                [
-                    cmax(dxl * it.zl - m_, P.hxl),
-                    cmax(dxu * it.zu - m_, P.hxu),
-                    cmax(dsl * it.vl - m_, P.hsl),
-                    cmax(dsu * it.vu - m_, P.hsu),
-                    cmax(R.p * R.zp - m_, rr),
-                    cmax(R.n * R.zn - m_, rr),
-                ]
-            )
-        )
-
+    products = (
+        (dxl * it.zl, P.hxl),
+        (dxu * it.zu, P.hxu),
+        (dsl * it.vl, P.hsl),
+        (dsu * it.vu, P.hsu),
+        (R.p * R.zp, rr),
+        (R.n * R.zn, rr),
+    )
+    c_max = jnp.max(jnp.stack([jnp.max(jnp.where(m_, v, -jnp.inf), initial=-jnp.inf) for v, m_ in products]))
+    c_min = jnp.min(jnp.stack([jnp.min(jnp.where(m_, v, jnp.inf), initial=jnp.inf) for v, m_ in products]))
     nz = (jnp.sum(P.hxl) + jnp.sum(P.hxu) + jnp.sum(P.hsl) + jnp.sum(P.hsu) + 2 * jnp.sum(rr)).astype(float)
     z1 = (
         jnp.sum(jnp.abs(it.zl))
@@ -79,23 +81,54 @@ def errors(ctx: Context, P: Prob, it: Iterate, ev: Evals, mu, R: Resto) -> Error
         + jnp.sum(jnp.abs(it.vu))
         + jnp.sum(jnp.where(rr, R.zp + R.zn, 0.0))
     )
-    sd = jnp.maximum(o.s_max, (jnp.sum(jnp.abs(y)) + z1) / jnp.maximum(1.0, ctx.m + nz)) / o.s_max
-    sc = jnp.maximum(o.s_max, z1 / jnp.maximum(1.0, nz)) / o.s_max
-    c0 = compl(0.0)
-    E0 = jnp.maximum(jnp.maximum(dual / sd, primal), c0 / sc)
-    Emu = jnp.maximum(jnp.maximum(dual / sd, primal), compl(mu) / sc)
-    pr_s = jnp.max(jnp.abs(c_orig), initial=0.0)
-    return Errors(
-        E0=E0,
-        Emu=Emu,
-        dual=dual,
-        primal=primal,
-        compl=c0,
-        pr_s=pr_s,
+    return ErrorTerms(
+        jt=jt_mult(ctx, ev.jac, y),
+        dual_s=jnp.maximum(jnp.max(jnp.abs(gLs), initial=0.0), jnp.max(gLpn, initial=0.0)),
+        primal=jnp.max(jnp.abs(resto_resid(P, R, ev.g, s, R.p, R.n)), initial=0.0),
+        sd=jnp.maximum(o.s_max, (jnp.sum(jnp.abs(y)) + z1) / jnp.maximum(1.0, ctx.m + nz)) / o.s_max,
+        sc=jnp.maximum(o.s_max, z1 / jnp.maximum(1.0, nz)) / o.s_max,
+        c_max=c_max,
+        c_min=c_min,
+        pr_s=jnp.max(jnp.abs(c_orig), initial=0.0),
         pr_u=jnp.max(jnp.abs(c_orig) / P.sg, initial=0.0),
+    )
+
+
+def empty_terms(n: int) -> ErrorTerms:
+    """Placeholder ``ErrorTerms`` (the shapes of a state before its first ``check``)."""
+    z = jnp.zeros(())
+    return ErrorTerms(jnp.zeros(n), z, z, z, z, z, z, z, z)
+
+
+def complementarity(T: ErrorTerms, mu):
+    """max(0, max_i |c_i - mu|) over the complementarity products c_i on finite bounds."""
+    return jnp.maximum(0.0, jnp.maximum(T.c_max - mu, mu - T.c_min))
+
+
+def errors_at(ctx: Context, P: Prob, it: Iterate, ev: Evals, R: Resto, T: ErrorTerms, mu) -> Errors:
+    """Optimality errors (5) at ``it`` for barrier parameter ``mu`` from its ``ErrorTerms``: only
+    the gradient of the restoration problem's proximity term and the complementarity depend on mu."""
+    gf = objective_grad(ctx.o, R, ev.grad, it.x, mu)
+    gLx = jnp.where(P.fixed, 0.0, gf + T.jt - it.zl + it.zu)
+    dual = jnp.maximum(jnp.max(jnp.abs(gLx), initial=0.0), T.dual_s)
+    c0 = complementarity(T, 0.0)
+    return Errors(
+        E0=jnp.maximum(jnp.maximum(dual / T.sd, T.primal), c0 / T.sc),
+        Emu=jnp.maximum(jnp.maximum(dual / T.sd, T.primal), complementarity(T, mu) / T.sc),
+        dual=dual,
+        primal=T.primal,
+        compl=c0,
+        pr_s=T.pr_s,
+        pr_u=T.pr_u,
         du_u=dual / P.sf,
         co_u=c0 / P.sf,
     )
+
+
+def errors(ctx: Context, P: Prob, it: Iterate, ev: Evals, mu, R: Resto) -> Errors:
+    """Optimality errors (5) of the problem being solved (in the restoration phase, of the
+    restoration problem)."""
+    return errors_at(ctx, P, it, ev, R, error_terms(ctx, P, it, ev, R), mu)
 
 
 def first_applicable(rules, default):
@@ -156,7 +189,8 @@ def step_status(stop_acceptable, resto_failed, ok_step):
 def check(ctx: Context, P: Prob, S: State, info: StepInfo, status) -> State:
     """Termination tests of the new iterate, its history row and the acceptable-point memory."""
     o = ctx.o
-    err = errors(ctx, P, S.it, S.ev, S.mu, S.rs)
+    terms = error_terms(ctx, P, S.it, S.ev, S.rs)
+    err = errors_at(ctx, P, S.it, S.ev, S.rs, terms, S.mu)
     k = S.k
     resto = S.rs.on
     conv = (
@@ -202,6 +236,7 @@ def check(ctx: Context, P: Prob, S: State, info: StepInfo, status) -> State:
     return S._replace(
         done=new_status != Status.Running,
         status=new_status,
+        terms=terms,
         n_acceptable=n_acc,
         hist=hist,
         cur_acc=keep,

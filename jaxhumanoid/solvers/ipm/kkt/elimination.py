@@ -48,11 +48,14 @@ class _Scaled(NamedTuple):
 
 
 class _Blocks(NamedTuple):
-    N: jax.Array  # (S-1, nb, nb) pivot factors of blocks 1..S-1
-    sgn: jax.Array  # (S-1, nb)
-    L: jax.Array  # (S-1, r, nb) rows b_rows of L_{k+1,k}
-    X: jax.Array  # (S-1, nb, r) border couplings X_k
-    info: jax.Array  # (S-1, 3) [nneg, nzero, path]
+    """The factors of blocks 1..S-1 at their index k; entry 0 is left for the border block (and
+    L[0], X[0] stay zero), so that the factor needs no copy into arrays of S entries."""
+
+    N: jax.Array  # (S, nb, nb) pivot factors
+    sgn: jax.Array  # (S, nb)
+    L: jax.Array  # (S, r, nb) rows b_rows of L_{k+1,k}
+    X: jax.Array  # (S, nb, r) border couplings X_k
+    info: jax.Array  # (S, 3) [nneg, nzero, path]
 
 
 class _Loop(NamedTuple):
@@ -158,8 +161,8 @@ def _block_loop(st: KKTStructure, sc: _Scaled, diag_r, fast, rel_zero_tol, early
 
     X1 = jnp.zeros((r_, nb), A.dtype).at[:, cb].set(Bs[0]).T  # B_0^T: block 0 is the border
     C0 = jnp.zeros((r_, r_), dtype=A.dtype)
-    N_s, sg_s, info_s = (jnp.broadcast_to(a, (S - 1,) + a.shape) for a in _skipped(nb, A.dtype))
-    out = _Blocks(N_s, sg_s, jnp.zeros((S - 1, r_, nb), A.dtype), jnp.zeros((S - 1, nb, r_), A.dtype), info_s)
+    N_s, sg_s, info_s = (jnp.broadcast_to(a, (S,) + a.shape) for a in _skipped(nb, A.dtype))
+    out = _Blocks(N_s, sg_s, jnp.zeros((S, r_, nb), A.dtype), jnp.zeros((S, nb, r_), A.dtype), info_s)
 
     def go_on(c):
         return (c.k < S) & ~_all_true(c.dead) if early_exit else c.k < S
@@ -167,7 +170,7 @@ def _block_loop(st: KKTStructure, sc: _Scaled, diag_r, fast, rel_zero_tol, early
     def step(c):
         k = c.k
         Cn, Xn, Nk, sk, Lk, info = _eliminate(st, sc, k, c.C, c.X, diag_r, fast, rel_zero_tol)
-        out = _Blocks(*(o.at[k - 1].set(v) for o, v in zip(c.out, (Nk, sk, Lk, c.X, info))))
+        out = _Blocks(*(o.at[k].set(v) for o, v in zip(c.out, (Nk, sk, Lk, c.X, info))))
         cnt = c.cnt + _counts(info, nb)
         return _Loop(k + 1, Cn, Xn, cnt, c.dead | (early_exit & decided(cnt, k)), out)
 
@@ -178,8 +181,8 @@ def _block_loop(st: KKTStructure, sc: _Scaled, diag_r, fast, rel_zero_tol, early
 def _border_schur(st: KKTStructure, A0, blocks: _Blocks):
     """D_0 = A_0 - sum_{k>=1} X_k D_k^{-1} X_k^T (nb, nb), with D_k^{-1} read on (b_rows, b_rows)."""
     rb = static_index(st.b_rows)
-    XN = jnp.einsum("kar,krj->kaj", blocks.X, blocks.N[:, rb])
-    Z = jnp.einsum("kaj,kj,kbj->ab", XN, blocks.sgn, XN)  # sum_k X_k D_k^{-1}[rb, rb] X_k^T
+    XN = jnp.einsum("kar,krj->kaj", blocks.X[1:], blocks.N[1:, rb])
+    Z = jnp.einsum("kaj,kj,kbj->ab", XN, blocks.sgn[1:], XN)  # sum_k X_k D_k^{-1}[rb, rb] X_k^T
     return A0 - Z
 
 
@@ -215,10 +218,9 @@ def _factor(st: KKTStructure, A, B, rel_zero_tol, fast, early_exit=False):
     npos, nneg, nzero = cnt + _counts(info0, nb)
     r_ = st.b_rows.size
     if S > 1:
-        Nf = jnp.concatenate([N0[None], blocks.N], axis=0)
-        sg = jnp.concatenate([sg0[None], blocks.sgn], axis=0)
-        L = jnp.concatenate([jnp.zeros((1, r_, nb), A.dtype), blocks.L], axis=0)
-        paths = jnp.concatenate([info0[None, 2], blocks.info[:, 2]]).astype(jnp.int32)
+        Nf, sg = blocks.N.at[0].set(N0), blocks.sgn.at[0].set(sg0)
+        L = blocks.L  # L[0] = 0: block 0 is the border
+        paths = blocks.info[:, 2].at[0].set(info0[2]).astype(jnp.int32)
     else:
         Nf, sg, L = N0[None], sg0[None], jnp.zeros((1, r_, nb), A.dtype)
         paths = info0[None, 2].astype(jnp.int32)
