@@ -298,7 +298,7 @@ def test_relaxed_stage_problem_steps_towards_the_nominal_law_where_the_relaxed_l
     monkeypatch.setattr(strat, "_run_solver", fake_run)
     task = dataclasses.replace(get_task("T1"), start=start)
     with pytest.warns(UserWarning, match="relaxed-law stages use law 1/4"):
-        sol = strat.solve(task, "A,F+C,2S", N=10, N1=5, contact=law)
+        sol = strat.solve(task, "A,F+C,2S", N=10, N1=5, contact=law, continuation_steps=4)
     assert sol.stages[0].law_step == 1 and [s.law_step for s in sol.stages[1:]] == [0, 0]
     np.testing.assert_allclose(kappas, [path[1].kappa] + [float(g.kappa) for g in strat.law_path(path[1], law, 4)])
     # stage 1 and the relaxed-law dynamic solve start from the one posture seated for law 1
