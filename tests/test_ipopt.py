@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 import jaxhumanoid  # noqa: F401  (float64)
+from jaxhumanoid.model.params import ContactParams
 from jaxhumanoid.solvers import ipopt_capi
 from jaxhumanoid.solvers.ipopt import solve_cyipopt_reference, solve_ipopt
 from jaxhumanoid.strategy.problem import build_problem
@@ -68,14 +69,20 @@ def test_same_iterates_as_cyipopt_on_the_humanoid():
 
 def test_programs_compiled_ahead_are_the_ones_the_solve_runs():
     pr = build_problem("T1", "A,F+C,1S", N=6)
-    pr.nlp.precompile(pr.bounds.x0, pr.p).result()
+    first = pr.nlp.precompile(pr.bounds.x0, pr.p)
+    first.result()
+    # the same shapes (another point, another law): the first call's future, no second compilation
+    moved = dataclasses.replace(pr.p, contact=ContactParams.relaxed())
+    assert pr.nlp.precompile(pr.bounds.x0 + 0.1, moved) is first
     ev = pr.nlp.jitted()
     sizes = [fn._cache_size() for fn in (ev.fg, ev.grad_jac, ev.hess)]
     assert sizes == [1, 1, 1]
     solve_ipopt(pr.nlp, pr.p, pr.bounds, options={"max_iter": 3})
     assert [fn._cache_size() for fn in (ev.fg, ev.grad_jac, ev.hess)] == sizes  # no other signature traced
+    wrong = pr.nlp.precompile(np.zeros(pr.nlp.n + 1), pr.p)  # other shapes: a compilation of their own
+    assert wrong is not first
     with pytest.raises(ValueError):  # an error in a program comes back through the future
-        pr.nlp.precompile(np.zeros(pr.nlp.n + 1), pr.p).result()
+        wrong.result()
 
 
 def test_warm_start_from_multipliers_converges_at_once():

@@ -95,14 +95,17 @@ class NLP:
         background threads (XLA compiles outside the GIL, so they share the cores with the caller
         and with each other). Returns a future that is done when all three are; calls at these
         shapes then run at once, e.g. a later stage's programs compiled while an earlier stage
-        solves."""
-        ev = self.jitted()
-        calls = [(ev.fg, (x, p)), (ev.grad_jac, (x, p)), (ev.hess, (x, np.ones(self.m), 1.0, p))]
-        pool = concurrent.futures.ThreadPoolExecutor(len(calls) + 1)
-        parts = [pool.submit(_run, fn, args) for fn, args in calls]
-        done = pool.submit(_wait, parts)  # raises the first error of the three
-        pool.shutdown(wait=False)
-        return done
+        solves. A second call at the same shapes returns the first call's future, so a solver's
+        warm-up waits for a compilation started earlier instead of starting its own."""
+        key = ("precompile", _signature(x), _signature(p))
+        if key not in self.cache:
+            ev = self.jitted()
+            calls = [(ev.fg, (x, p)), (ev.grad_jac, (x, p)), (ev.hess, (x, np.ones(self.m), 1.0, p))]
+            pool = concurrent.futures.ThreadPoolExecutor(len(calls) + 1)
+            parts = [pool.submit(_run, fn, args) for fn, args in calls]
+            self.cache[key] = pool.submit(_wait, parts)  # raises the first error of the three
+            pool.shutdown(wait=False)
+        return self.cache[key]
 
     @property
     def nnz_jac(self) -> int:
@@ -111,6 +114,13 @@ class NLP:
     @property
     def nnz_hess(self) -> int:
         return int(self.hess_rows.size)
+
+
+def _signature(tree) -> tuple:
+    """What ``jax.jit`` keys its compiled programs on: the tree's structure and each leaf's shape
+    and type (a Python scalar is weakly typed)."""
+    leaves, treedef = jax.tree_util.tree_flatten(tree)
+    return (treedef, *((np.shape(a), np.result_type(a).str, isinstance(a, (int, float))) for a in leaves))
 
 
 def _run(fn, args):

@@ -265,19 +265,14 @@ def make_solution(problem: Problem, x, stages, solver: str, warm_start=None) -> 
     if layout.pseudo_static:
         qdbar = np.diff(q, axis=0) / h
     idx = np.asarray(layout.active, dtype=int) - 1
-    if layout.augmented:
-        forces = Z[:-1, sl["f"]].reshape(N, -1, 2)
-    else:
-        forces = jax.vmap(lambda a, b: ct.contact_forces(p.model, p.foot, p.contact, a, b, layout.active))(qbar, qdbar)
-    f_contact = np.zeros((N, layout.n_links, 2))
-    f_contact[:, idx] = np.asarray(forces)
     qdd = np.zeros_like(qbar) if layout.pseudo_static else np.diff(qd, axis=0) / h
     qd_used = np.zeros_like(qbar) if layout.pseudo_static else qdbar
-    reaction = jax.vmap(lambda a, b, c, f: ft.foot_reaction(p.model, a, b, c, f))
-    f_c0 = np.asarray(reaction(qbar, qd_used, qdd, jnp.asarray(forces)))
-    margins = np.asarray(jax.vmap(lambda f, u1: ft.foot_constraints(p.foot, p.contact.mu, f, u1))(f_c0, u[:, 0]))
-    gaps = np.asarray(jax.vmap(lambda qq: kin.contact_gaps(p.model, p.foot, qq))(q))
-    terms = {k: float(v) for k, v in tr.objective_terms(layout, jnp.asarray(Z), p).items()}
+    forces, f_c0, margins, gaps, terms = jax.tree_util.tree_map(
+        np.asarray, _derived(layout, p, jnp.asarray(Z), qbar, qdbar, qd_used, qdd)
+    )
+    f_contact = np.zeros((N, layout.n_links, 2))
+    f_contact[:, idx] = forces
+    terms = {k: float(terms[k]) for k in OBJECTIVE_TERMS}  # in (7)'s order (a jitted dict comes back sorted)
     return Solution(
         task=problem.task.key,
         scheme=str(problem.scheme),
@@ -315,6 +310,25 @@ def make_solution(problem: Problem, x, stages, solver: str, warm_start=None) -> 
         },
         warm_start=warm_start,
     )
+
+
+OBJECTIVE_TERMS = ("torque", "velocity", "acceleration", "torque_rate")  # the keys of tr.objective_terms
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _derived(layout: tr.Layout, p, Z, qbar, qdbar, qd_used, qdd):
+    """``make_solution``'s contact forces (N, k, 2), foot reaction, rows (5), gaps and the terms of
+    (7) as one program: evaluated op by op, each of their operations compiles on its own."""
+    N = layout.N
+    if layout.augmented:
+        forces = Z[:-1, layout.stage_slices()["f"]].reshape(N, -1, 2)
+    else:
+        forces = jax.vmap(lambda a, b: ct.contact_forces(p.model, p.foot, p.contact, a, b, layout.active))(qbar, qdbar)
+    f_c0 = jax.vmap(lambda a, b, c, f: ft.foot_reaction(p.model, a, b, c, f))(qbar, qd_used, qdd, forces)
+    u1 = Z[:-1, layout.stage_slices()["u"]][:, 0]
+    margins = jax.vmap(lambda f, u: ft.foot_constraints(p.foot, p.contact.mu, f, u))(f_c0, u1)
+    gaps = jax.vmap(lambda qq: kin.contact_gaps(p.model, p.foot, qq))(Z[:, layout.stage_slices()["q"]])
+    return forces, f_c0, margins, gaps, tr.objective_terms(layout, Z, p)
 
 
 def restart_point(problem: Problem, seed: int | None) -> np.ndarray:
