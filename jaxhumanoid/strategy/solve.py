@@ -623,6 +623,8 @@ def solve(
         guess=guess if scheme.stages == 1 else "linear",  # 2S: the dynamic stages start from stage 1's solution
         foot_margin=foot_margin,
     )
+    if scheme.stages == 2 and solver == "ipopt":
+        final.nlp.precompile(final.bounds.x0, final.p)  # the dynamic stages compile while stage 1 runs
     setup_final = time.perf_counter() - t0
     stages, warm = [], None
     x0 = final.bounds.x0
