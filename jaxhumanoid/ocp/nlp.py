@@ -120,7 +120,12 @@ def _signature(tree) -> tuple:
     """What ``jax.jit`` keys its compiled programs on: the tree's structure and each leaf's shape
     and type (a Python scalar is weakly typed)."""
     leaves, treedef = jax.tree_util.tree_flatten(tree)
-    return (treedef, *((np.shape(a), np.result_type(a).str, isinstance(a, (int, float))) for a in leaves))
+    return (treedef, *((np.shape(a), _dtype(a).str, isinstance(a, (int, float))) for a in leaves))
+
+
+def _dtype(a) -> np.dtype:
+    """The dtype of an array leaf, or numpy's for a Python scalar (without converting an array)."""
+    return np.dtype(a.dtype) if hasattr(a, "dtype") else np.result_type(type(a))
 
 
 def _run(fn, args):
