@@ -263,8 +263,11 @@ def interval_cost(layout: Layout, za, zb, p: OCPParams, last_u):
     return effort + (w[n + 1] * jnp.dot(qd1 - qd0, qd1 - qd0) + w[n + 2] * jnp.dot(du, du)) / h
 
 
+OBJECTIVE_TERMS = ("torque", "velocity", "acceleration", "torque_rate")  # (7)'s terms, in its order
+
+
 def objective_terms(layout: Layout, Z, p: OCPParams):
-    """The four terms of (7) for the whole trajectory (for reports)."""
+    """The four terms of (7) for the whole trajectory (for reports), keyed by ``OBJECTIVE_TERMS``."""
     sl = layout.stage_slices()
     h = p.T / layout.N
     w, n = p.weights, layout.n_links

@@ -33,7 +33,7 @@ from jaxhumanoid.solvers import ipopt_capi
 from jaxhumanoid.strategy.posture import find_equilibrium
 from jaxhumanoid.strategy.problem import DEFAULT_GUESS, GUESSES, Problem, problem_from_settings, stage_problem
 from jaxhumanoid.strategy.solution import Solution
-from jaxhumanoid.strategy.solve import DEFAULT_HANDOVER, DEFAULT_STAGE1_SOLVER, HANDOVERS, SOLVERS, solve
+from jaxhumanoid.strategy.solve import DEFAULT_HANDOVER, DEFAULT_STAGE1_SOLVER, HANDOVERS, check_arguments, solve
 from jaxhumanoid.strategy.taskfile import load_task_file, solve_kwargs, task_files
 from jaxhumanoid.studies import ENGINES, sweep
 from jaxhumanoid.tracking import montecarlo
@@ -151,26 +151,9 @@ def solve_arguments(args) -> dict:
 
 
 def check_settings(kwargs: dict) -> None:
-    """The settings of a solve from the command line and a task file, checked before any work
-    (``solve`` checks them again): what they reject exits with status 2."""
-    get_task(kwargs["task"])
-    parse_scheme(kwargs["scheme"])
-    for name, allowed in (
-        ("solver", SOLVERS),
-        ("guess", GUESSES),
-        ("handover", HANDOVERS),
-        ("scaling", SCALINGS),
-        ("stage1_solver", (*SOLVERS, "same", None)),
-    ):
-        if name in kwargs and kwargs[name] not in allowed:
-            raise ValueError(f"{name}: {kwargs[name]!r} not in {allowed}")
-    for name in ("N", "N1"):
-        value = kwargs.get(name)
-        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 3):
-            raise ValueError(f"{name}: expected an integer number of intervals >= 3, got {value!r}")
-    T = kwargs.get("T", 5.0)
-    if isinstance(T, bool) or not isinstance(T, (int, float)) or not np.isfinite(T) or T <= 0:
-        raise ValueError(f"T: expected a positive horizon in seconds, got {T!r}")
+    """The settings of a solve from the command line and a task file, checked before any work as
+    ``solve`` checks them (``strategy.solve.check_arguments``): what they reject exits with status 2."""
+    check_arguments(**kwargs)
 
 
 def force_limit_arg(text: str) -> float | str:

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import inspect
 import time
 import warnings
 from collections.abc import Callable
@@ -272,7 +273,7 @@ def make_solution(problem: Problem, x, stages, solver: str, warm_start=None) -> 
     )
     f_contact = np.zeros((N, layout.n_links, 2))
     f_contact[:, idx] = forces
-    terms = {k: float(terms[k]) for k in OBJECTIVE_TERMS}  # in (7)'s order (a jitted dict comes back sorted)
+    terms = {k: float(terms[k]) for k in tr.OBJECTIVE_TERMS}  # in (7)'s order (a jitted dict comes back sorted)
     return Solution(
         task=problem.task.key,
         scheme=str(problem.scheme),
@@ -310,9 +311,6 @@ def make_solution(problem: Problem, x, stages, solver: str, warm_start=None) -> 
         },
         warm_start=warm_start,
     )
-
-
-OBJECTIVE_TERMS = ("torque", "velocity", "acceleration", "torque_rate")  # the keys of tr.objective_terms
 
 
 @functools.partial(jax.jit, static_argnums=0)
@@ -475,24 +473,43 @@ def _is_count(value, low: int) -> bool:
     return bool(not isinstance(value, bool) and isinstance(value, (int, np.integer)) and value >= low)
 
 
-def _check_inputs(N, T, N1, model, contact, foot, contact_stage1, options) -> None:
-    """Every argument of ``solve`` checked before any work, each error naming its field."""
-    for name, value in (("N", N), ("N1", N1)):
-        if value is not None and not _is_count(value, 3):
-            raise ValueError(f"{name}: expected an integer number of intervals >= 3, got {value!r}")
+def check_arguments(**kwargs) -> None:
+    """``solve``'s keyword arguments checked as ``solve`` checks them before any work: a ValueError
+    names the field and the values it allows (the command line's status 2)."""
+    bound = inspect.signature(solve).bind(**kwargs)
+    bound.apply_defaults()
+    _check_arguments(bound.arguments)
+
+
+def _check_arguments(a: dict) -> None:
+    """Every argument of ``solve`` (``a``: name -> value) checked before any work, each error
+    naming its field."""
+    get_task(a["task"])
+    parse_scheme(a["scheme"])
+    for name, allowed in (
+        ("solver", SOLVERS),
+        ("stage1_solver", (*SOLVERS, "same", None)),
+        ("guess", GUESSES),
+        ("handover", HANDOVERS),
+    ):
+        if a[name] not in allowed:
+            raise ValueError(f"{name}: {a[name]!r} not in {allowed}")
+    check_scaling(a["scaling"])
+    if not _is_count(a["continuation_steps"], 1):
+        raise ValueError(f"continuation_steps: expected an integer >= 1, got {a['continuation_steps']!r}")
+    for name in ("N", "N1"):
+        if a[name] is not None and not _is_count(a[name], 3):
+            raise ValueError(f"{name}: expected an integer number of intervals >= 3, got {a[name]!r}")
+    T = a["T"]
     if isinstance(T, bool) or not isinstance(T, (int, float, np.integer, np.floating)) or not np.isfinite(T) or T <= 0:
         raise ValueError(f"T: expected a positive horizon in seconds (a number), got {T!r}")
-    for name, value, cls in (
-        ("model", model, PlanarChain),
-        ("contact", contact, ContactParams),
-        ("foot", foot, FootParams),
-        ("contact_stage1", contact_stage1, ContactParams),
-    ):
-        if value is not None and not isinstance(value, cls):
-            raise ValueError(f"{name}: expected a {cls.__name__} or None, got {type(value).__name__}")
-    for name, value in options.items():
-        if value is not None and not isinstance(value, dict):
-            raise ValueError(f"{name}: expected a dict of solver options or None, got {type(value).__name__}")
+    types = {"model": PlanarChain, "contact": ContactParams, "foot": FootParams, "contact_stage1": ContactParams}
+    for name, cls in types.items():
+        if a[name] is not None and not isinstance(a[name], cls):
+            raise ValueError(f"{name}: expected a {cls.__name__} or None, got {type(a[name]).__name__}")
+    for name in ("options", "stage1_options", "stage2_options"):
+        if a[name] is not None and not isinstance(a[name], dict):
+            raise ValueError(f"{name}: expected a dict of solver options or None, got {type(a[name]).__name__}")
 
 
 def _weights_array(weights, n: int):
@@ -579,30 +596,9 @@ def solve(
     far inside the edges of (5) in both stages. ``scaling`` (``ocp.scaling.SCALINGS``): ``"physical"``
     has every backend solve the NLPs in units of O(1) (torques in 10 N m, forces in 100 N, the
     objective in 100), ``"none"`` as posed. Every argument is checked before any work starts."""
-    task = get_task(task)
-    scheme = parse_scheme(scheme)
-    if solver not in SOLVERS:
-        raise ValueError(f"solver: {solver!r} not in {SOLVERS}")
+    _check_arguments(dict(locals()))  # solve's arguments, before anything else is bound
+    task, scheme = get_task(task), parse_scheme(scheme)
     stage1_solver = None if stage1_solver == "same" else stage1_solver
-    if stage1_solver is not None and stage1_solver not in SOLVERS:
-        raise ValueError(f"stage1_solver: {stage1_solver!r} not in {SOLVERS} (or 'same' or None: the solver)")
-    if guess not in GUESSES:
-        raise ValueError(f"guess: {guess!r} not in {GUESSES}")
-    if handover not in HANDOVERS:
-        raise ValueError(f"handover: {handover!r} not in {HANDOVERS}")
-    check_scaling(scaling)
-    if not _is_count(continuation_steps, 1):
-        raise ValueError(f"continuation_steps: expected an integer >= 1, got {continuation_steps!r}")
-    _check_inputs(
-        N,
-        T,
-        N1,
-        model,
-        contact,
-        foot,
-        contact_stage1,
-        {"options": options, "stage1_options": stage1_options, "stage2_options": stage2_options},
-    )
     T = float(T)
     N1 = min(STAGE1_N, int(N)) if N1 is None else int(N1)
     weights = _weights_array(weights, task.n if model is None else model.n)
@@ -623,8 +619,9 @@ def solve(
         guess=guess if scheme.stages == 1 else "linear",  # 2S: the dynamic stages start from stage 1's solution
         foot_margin=foot_margin,
     )
-    if scheme.stages == 2 and solver == "ipopt":
-        final.nlp.precompile(final.bounds.x0, final.p)  # the dynamic stages compile while stage 1 runs
+    dynamic = {solver, stage1_solver or solver} if handover == "continuation" else {solver}
+    if scheme.stages == 2 and "ipopt" in dynamic:  # IPOPT's dynamic stages compile while stage 1 runs
+        final.nlp.precompile(final.bounds.x0, final.p)
     setup_final = time.perf_counter() - t0
     stages, warm = [], None
     x0 = final.bounds.x0
