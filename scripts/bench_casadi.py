@@ -49,7 +49,7 @@ import numpy as np
 import jaxhumanoid as jh
 from jaxhumanoid.runtime import environment
 from jaxhumanoid.solvers.ipopt import solve_ipopt
-from jaxhumanoid.strategy import solve as strat
+from jaxhumanoid.strategy.runner import Runner
 from jaxhumanoid.validation.casadi_backend import solve_casadi
 
 # Stage-2 wall time per iteration of the independent CasADi SX + IPOPT 3.14.19/MUMPS implementation and
@@ -67,17 +67,18 @@ class _Captured(Exception):
 def stage2_start(path: pathlib.Path):
     """(problem, x0, options) of the first dynamic-stage solve of the task file's 2S with IPOPT."""
     got: dict = {}
-    run_solver = strat._run_solver
+    run = Runner.run
 
-    def capture(solver, problem, x0, options, *args, **kwargs):
+    def capture(runner, problem, x0, options, stage):
         if not problem.layout.pseudo_static:
             got.update(problem=problem, x0=np.array(x0), options=dict(options))
             raise _Captured
-        return run_solver(solver, problem, x0, options, *args, **kwargs)
+        return run(runner, problem, x0, options, stage)
 
-    kwargs = {**jh.load_task_file(path).as_solve_kwargs(), "solver": "ipopt", "stage1_solver": "ipopt"}
-    with mock.patch.object(strat, "_run_solver", side_effect=capture), contextlib.suppress(_Captured):
-        strat.solve(**kwargs)
+    kwargs = jh.load_task_file(path).as_solve_kwargs()
+    kwargs.update(solver="ipopt", settings=kwargs["settings"].replace(stage1_solver="ipopt"))
+    with mock.patch.object(Runner, "run", capture), contextlib.suppress(_Captured):
+        jh.solve(**kwargs)
     if not got:
         raise RuntimeError(f"{path}: the strategy reached no dynamic stage")
     return got["problem"], got["x0"], got["options"]

@@ -42,6 +42,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from unittest import mock
 
 import jax
 import jax.numpy as jnp
@@ -50,7 +51,10 @@ import numpy as np
 from jaxhumanoid.runtime import enable_compilation_cache, environment
 from jaxhumanoid.solvers.ipm import batch_solve_ipm, solve_ipm
 from jaxhumanoid.solvers.ipopt import solve_ipopt
-from jaxhumanoid.strategy import solve as strat
+from jaxhumanoid.strategy.runner import Runner
+from jaxhumanoid.strategy.settings import SolveSettings
+from jaxhumanoid.strategy.solve import solve
+from jaxhumanoid.strategy.stage_one import STAGE1_DEFAULTS
 from jaxhumanoid.strategy.taskfile import load_task_file
 from jaxhumanoid.studies.bench import git_state, stage1_problem
 
@@ -70,18 +74,16 @@ def stage2_start(name: str, ref_dir: pathlib.Path):
     """(problem, x0, options) of the last solve of a direct-hand-over 2S solve by IPOPT: stage 2
     from IPOPT's stage 1, with the options that stage gets."""
     calls = []
-    run = strat._run_solver
+    run = Runner.run
 
-    def record(solver, problem, x0, options, *a, **k):
+    def record(runner, problem, x0, options, stage):
         calls.append((problem, np.array(x0, dtype=float), dict(options)))
-        return run(solver, problem, x0, options, *a, **k)
+        return run(runner, problem, x0, options, stage)
 
-    kw = {**solve_kwargs_of(name, ref_dir), "solver": "ipopt", "stage1_solver": "ipopt", "handover": "direct"}
-    strat._run_solver = record
-    try:
-        strat.solve(**kw)
-    finally:
-        strat._run_solver = run
+    kw = solve_kwargs_of(name, ref_dir)
+    settings = (kw.get("settings") or SolveSettings()).replace(stage1_solver="ipopt", handover="direct")
+    with mock.patch.object(Runner, "run", record):
+        solve(**{**kw, "solver": "ipopt", "settings": settings})
     return calls[-1]
 
 
@@ -254,11 +256,11 @@ def rounding_spread(task: str) -> dict:
     first, _ = stage1_problem(task)
     runs = []
     for extra in ROUNDING_VARIANTS:
-        r = solve_ipopt(first.nlp, first.p, first.bounds, options={**strat.STAGE1_DEFAULTS, **extra})
+        r = solve_ipopt(first.nlp, first.p, first.bounds, options={**STAGE1_DEFAULTS, **extra})
         runs.append(
             {"options": extra, "status": r.status, "iterations": int(r.iterations), "objective": float(r.objective)}
         )
-    r = solve_ipm(first.nlp, first.p, first.bounds, options=strat.STAGE1_DEFAULTS)
+    r = solve_ipm(first.nlp, first.p, first.bounds, options=STAGE1_DEFAULTS)
     print(f"{task}: IPOPT its {[v['iterations'] for v in runs]}, IPM its {r.iterations} objective {r.objective:.4g}")
     return {
         "ipopt": runs,
@@ -273,7 +275,7 @@ def batch_throughput(batch: int) -> dict:
     weights = np.asarray(prob.p.weights)[None] * np.exp(0.2 * rng.standard_normal((batch, np.size(prob.p.weights))))
     p_batch = jax.tree.map(lambda a: jnp.broadcast_to(a, (batch,) + jnp.shape(a)), prob.p)
     p_batch = dataclasses.replace(p_batch, weights=jnp.asarray(weights))
-    opts = dict(strat.STAGE1_DEFAULTS)
+    opts = dict(STAGE1_DEFAULTS)
     batch_solve_ipm(prob.nlp, p_batch, prob.bounds, options=opts)  # compile
     res_b, _, t_batch = timed(lambda: batch_solve_ipm(prob.nlp, p_batch, prob.bounds, options=opts))
     members = [jax.tree.map(lambda a, i=i: a[i], p_batch) for i in range(batch)]

@@ -39,7 +39,7 @@ from jaxhumanoid.runtime import enable_compilation_cache
 from jaxhumanoid.solvers.ipm import kkt, solve_ipm
 from jaxhumanoid.solvers.ipm.kkt import condensed, elimination
 from jaxhumanoid.solvers.ipopt import solve_ipopt
-from jaxhumanoid.strategy import solve as strat
+from jaxhumanoid.strategy.handover import STAGE2_DEFAULTS
 from jaxhumanoid.studies.bench import stage2_warm_start, write_record
 from jaxhumanoid.studies.kkt_data import backward_error, make_data, ruiz, sparse_kkt
 
@@ -116,7 +116,7 @@ def kkt_level(D: dict, repeats: int) -> dict:
 
 def ipm_level(task: str, runs: int, iters: int) -> dict:
     prob, x0 = stage2_warm_start(task)
-    short = {**strat.STAGE2_DEFAULTS, "max_iter": iters}
+    short = {**STAGE2_DEFAULTS, "max_iter": iters}
     out: dict = {}
     solve_ipopt(prob.nlp, prob.p, prob.bounds, x0=x0, options=short)  # jit its evaluators
     for name in (*METHODS, "ipopt"):
@@ -129,7 +129,7 @@ def ipm_level(task: str, runs: int, iters: int) -> dict:
             ms.append(r.solve_time_s / max(r.iterations, 1) * 1e3)
         out[name] = {"ms_per_iteration": float(np.median(ms)), "samples_ms": ms}
     for name in METHODS:
-        r = solve_ipm(prob.nlp, prob.p, prob.bounds, x0=x0, options={**strat.STAGE2_DEFAULTS, "kkt_method": name})
+        r = solve_ipm(prob.nlp, prob.p, prob.bounds, x0=x0, options={**STAGE2_DEFAULTS, "kkt_method": name})
         out[name].update(
             status=r.status, iterations=int(r.iterations), objective=float(r.objective), solve_s=r.solve_time_s
         )

@@ -37,10 +37,12 @@ from jaxhumanoid.studies.compare import Outcome, agreement
 
 def run_one(task: str, solver: str, scheme: str, N: int, overrides: dict) -> tuple[dict, Outcome]:
     """One solve of a task key (scheme and N as given) or of a task file (its own settings), with
-    ``overrides`` of ``solve``'s keyword arguments."""
+    ``overrides`` of its ``SolveSettings``."""
     t0 = time.perf_counter()
     grid = {} if task.endswith(".toml") else {"scheme": scheme, "N": N}
-    sol = jh.solve(**{**solve_kwargs(task), **grid, **overrides, "solver": solver})
+    kw = solve_kwargs(task)
+    settings = (kw.pop("settings", None) or jh.SolveSettings()).replace(**overrides)
+    sol = jh.solve(**{**kw, **grid, "settings": settings, "solver": solver})
     rec = sol.report()
     rec["wall_s"] = time.perf_counter() - t0
     return rec, Outcome(bool(sol.success), float(sol.objective), np.asarray(sol.q))

@@ -65,7 +65,8 @@ def plan(task: str, plans: pathlib.Path, margin=None, N=None, limit=None) -> pat
         if limit is not None:
             kwargs["task"] = with_force_limit(kwargs["task"], limit)
         if margin is not None:
-            kwargs["foot_margin"] = FootMargin(*margin)
+            settings = kwargs.get("settings") or jh.SolveSettings()
+            kwargs["settings"] = settings.replace(foot_margin=FootMargin(*margin))
         if N is not None:
             kwargs["N"] = N
         sol = jh.solve(**kwargs)

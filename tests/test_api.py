@@ -15,7 +15,7 @@ from jaxhumanoid.ocp.tasks import effort_weights
 from jaxhumanoid.outputs.cli import build_parser, main, solve_arguments
 from jaxhumanoid.runtime import runs_blas_coretype
 from jaxhumanoid.strategy.posture import margins
-from jaxhumanoid.strategy.solve import CONTINUATION_STEPS
+from jaxhumanoid.strategy.settings import CONTINUATION_STEPS
 
 EXAMPLES = pathlib.Path(__file__).resolve().parents[1] / "examples"
 
@@ -66,7 +66,7 @@ def test_the_own_ipm_solves_a_body_of_other_than_five_links_as_ipopt_does():
     [
         (dict(T="5"), "T"),
         (dict(N=2.5), "N"),
-        (dict(N1=1), "N1"),
+        (dict(settings={"N1": 20}), "settings"),
         (dict(weights=[1.0, 2.0]), "weights"),
         (dict(model="humanoid"), "model"),
         (dict(contact={"kappa": 1.0}), "contact"),
@@ -145,7 +145,7 @@ def test_the_paper_task_files_pose_the_tasks_on_the_wide_body(key):
     # adult shoulder range), a 1000 N m torque box and one set of weights for every task
     tf, task = jh.load_task_file(EXAMPLES / "paper" / f"{key}.toml"), jh.get_task(key)
     assert tf.task.active == task.active and np.all(tf.model.u_max == TORQUE_LIMIT)
-    assert tf.task.weights == jh.Weights() and tf.settings["handover"] == "direct"
+    assert tf.task.weights == jh.Weights() and tf.settings.handover == "direct"
     lying = {"T1": "start", "T2": "goal", "T3": "start", "T4": "goal"}[key]
     standing = "goal" if lying == "start" else "start"
     np.testing.assert_array_equal(getattr(tf.task, standing), getattr(task, standing))
@@ -160,15 +160,21 @@ def test_the_paper_task_files_pose_the_tasks_on_the_wide_body(key):
 
 def test_handover_settings_come_from_the_task_file_and_the_command_line_overrides_them():
     kw = solve_arguments(build_parser().parse_args(["solve", "--task", "T2"]))
-    assert kw["handover"] == "continuation" and kw["stage1_solver"] == "ipopt" and kw["guess"] == "inverse_dynamics"
+    assert kw["settings"] == jh.SolveSettings()
+    s = kw["settings"]
+    assert s.handover == "continuation" and s.stage1_solver == "ipopt" and s.guess == "inverse_dynamics"
     path = str(EXAMPLES / "paper" / "T1.toml")
-    kw = solve_arguments(build_parser().parse_args(["solve", "--task-file", path]))
-    assert kw["handover"] == "direct" and kw["stage1_solver"] == "same" and kw["guess"] == "linear"
-    args = ["solve", "--task-file", path, "--handover", "continuation", "--stage1-solver", "ipm"]
+    s = solve_arguments(build_parser().parse_args(["solve", "--task-file", path]))["settings"]
+    assert s.handover == "direct" and s.stage1_solver == "same" and s.guess == "linear"
+    args = ["solve", "--task-file", path, "--handover", "continuation", "--stage1-solver", "ipm", "--N1", "12"]
     kw = solve_arguments(build_parser().parse_args(args))
-    assert kw["handover"] == "continuation" and kw["stage1_solver"] == "ipm"
+    s = kw["settings"]
+    assert s.handover == "continuation" and s.stage1_solver == "ipm" and s.guess == "linear" and s.N1 == 12
+    assert kw["scheme"] == "A,F+C,2S" and kw["N"] == 100  # solve's own keywords, the file's or the defaults
     with pytest.raises(ValueError, match="stage1_solver"):
-        jh.solve("T1", stage1_solver="mumps")
+        jh.SolveSettings(stage1_solver="mumps")
+    with pytest.raises(ValueError, match="N1"):
+        solve_arguments(build_parser().parse_args(["solve", "--N1", "2"]))
 
 
 @pytest.mark.slow
@@ -184,7 +190,7 @@ def test_the_three_backends_reach_one_optimum_on_the_built_in_tasks(key):
 
 def test_the_continuation_brings_ipopt_and_the_ipm_to_one_optimum_on_t3():
     # T3 on a coarse grid: the relaxed-law stages by IPOPT, then each backend's continuation
-    sols = {s: jh.solve("T3", solver=s, N=30, N1=15) for s in ("ipopt", "ipm")}
+    sols = {s: jh.solve("T3", solver=s, N=30, settings=jh.SolveSettings(N1=15)) for s in ("ipopt", "ipm")}
     assert all(sol.success for sol in sols.values()), {s: sol.status for s, sol in sols.items()}
     # one run of the relaxed-law dynamic solve, one per law of the continuation
     assert [st.attempts for st in sols["ipm"].stages][1:] == [1, CONTINUATION_STEPS]

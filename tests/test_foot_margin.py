@@ -18,6 +18,7 @@ from jaxhumanoid.model.params import ContactParams, FootParams
 from jaxhumanoid.ocp import transcription as tr
 from jaxhumanoid.outputs.cli import main
 from jaxhumanoid.strategy.problem import build_problem
+from jaxhumanoid.strategy.settings import SolveSettings
 from jaxhumanoid.strategy.solve import solve
 from jaxhumanoid.strategy.taskfile import load_task_file
 from jaxhumanoid.validation.checks import cross_validate
@@ -31,7 +32,8 @@ MARGIN = FootMargin(load=0.6, friction=0.3, cop=0.03)
 
 
 def _lean(margin):
-    return solve(TASKS[2], "A,F+C,1S", N=15, T=0.6, model=CHAINS[2], contact=SLIPPERY, foot_margin=margin)
+    settings = SolveSettings(foot_margin=margin)
+    return solve(TASKS[2], "A,F+C,1S", N=15, T=0.6, model=CHAINS[2], contact=SLIPPERY, settings=settings)
 
 
 def physical_margins(sol):
@@ -109,17 +111,20 @@ def test_margins_are_checked_against_the_foot_and_the_start_before_any_work():
     with pytest.raises(ValueError, match=r"FootMargin.cop: expected a distance in \[0, 0.129\)"):
         check_foot_margin(FootMargin(cop=0.13), FootParams.paper())
     with pytest.raises(ValueError, match="foot_margin: expected a FootMargin"):
-        solve("T1", foot_margin=0.1)  # type: ignore[arg-type]
+        SolveSettings(foot_margin=0.1)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match=r"FootMargin.cop: expected a distance in \[0, 0.129\)"):
+        solve("T1", settings=SolveSettings(foot_margin=FootMargin(cop=0.13)))
     with pytest.raises(ValueError, match="foot_margin: the start posture of task T1 keeps a foot load of 0"):
-        solve("T1", foot_margin=FootMargin(load=0.9))  # the prone start carries about a quarter of the body
+        # the prone start carries about a quarter of the body
+        solve("T1", settings=SolveSettings(foot_margin=FootMargin(load=0.9)))
 
 
 def test_task_files_and_the_command_line_take_a_margin(tmp_path):
     src = pathlib.Path(__file__).parents[1] / "examples" / "bow_3link.toml"
     good = tmp_path / "good.toml"
     good.write_text(src.read_text() + "\n[foot_margin]\nload = 0.2\nfriction = 0.25\ncop = 0.02\n")
-    assert load_task_file(good).as_solve_kwargs()["foot_margin"] == FootMargin(0.2, 0.25, 0.02)
-    assert "foot_margin" not in load_task_file(src).as_solve_kwargs()
+    assert load_task_file(good).as_solve_kwargs()["settings"].foot_margin == FootMargin(0.2, 0.25, 0.02)
+    assert load_task_file(src).as_solve_kwargs()["settings"].foot_margin is None
     for extra, match in (("tilt = 0.1", "unknown keys"), ("cop = 0.5", "FootMargin.cop")):
         bad = tmp_path / "bad.toml"
         bad.write_text(src.read_text() + f"\n[foot_margin]\n{extra}\n")

@@ -11,8 +11,10 @@ from jaxhumanoid.ocp.nlp import Bounds
 from jaxhumanoid.ocp.tasks import NO_FORCE_LIMIT, with_force_limit
 from jaxhumanoid.solvers.ipm import IPMOptions, batch_solve_ipm, kkt, solve_ipm
 from jaxhumanoid.solvers.ipopt import solve_cyipopt_reference, solve_ipopt
-from jaxhumanoid.strategy import solve as strat
+from jaxhumanoid.strategy.posture import reseat_for_contact
 from jaxhumanoid.strategy.problem import build_problem
+from jaxhumanoid.strategy.solve import solve
+from jaxhumanoid.strategy.stage_one import STAGE1_DEFAULTS
 from jaxhumanoid.validation import testproblems as tp
 
 # degenerate HS013 (no constraint qualification at x*): IPOPT 3.14 and the IPM both stop at
@@ -181,10 +183,10 @@ def test_humanoid_pseudo_static_stage_small_n_as_ipopt():
     task = with_force_limit("T3", NO_FORCE_LIMIT)
     relaxed = ContactParams.relaxed()
     final = build_problem(task, "A,F+C,2S", N=20)
-    q1, _ = strat.reseat_for_contact(final.p, final.p.q_start, final.layout.active, relaxed)
+    q1, _ = reseat_for_contact(final.p, final.p.q_start, final.layout.active, relaxed)
     prob = build_problem(task, "A,F+C,2S", N=10, pseudo_static=True, contact=relaxed, q_start=q1)
-    r = solve_ipm(prob.nlp, prob.p, prob.bounds, options=strat.STAGE1_DEFAULTS)
-    ref = solve_ipopt(prob.nlp, prob.p, prob.bounds, options=strat.STAGE1_DEFAULTS)
+    r = solve_ipm(prob.nlp, prob.p, prob.bounds, options=STAGE1_DEFAULTS)
+    ref = solve_ipopt(prob.nlp, prob.p, prob.bounds, options=STAGE1_DEFAULTS)
     assert r.status == ref.status == "Solve_Succeeded", r.log
     assert r.max_constraint_violation <= 1e-6
     assert abs(r.iterations - ref.iterations) <= 0.1 * ref.iterations, (r.iterations, ref.iterations)
@@ -210,8 +212,8 @@ def test_humanoid_pseudo_static_stage_small_n_as_ipopt():
 def test_full_task_t3_two_stage_as_ipopt():
     """The paper's T3 with A,F+C,2S at N = 100: both stages succeed with the IPM and reach
     IPOPT's optimum (objective and trajectory), in no more iterations than 1.5x IPOPT's."""
-    a = strat.solve("T3", "A,F+C,2S", solver="ipm")
-    b = strat.solve("T3", "A,F+C,2S", solver="ipopt")
+    a = solve("T3", "A,F+C,2S", solver="ipm")
+    b = solve("T3", "A,F+C,2S", solver="ipopt")
     assert all(s.status == "Solve_Succeeded" for s in a.stages), [s.status for s in a.stages]
     assert abs(a.objective - b.objective) <= 1e-6 * abs(b.objective)
     assert np.max(np.abs(a.q - b.q)) <= 1e-4

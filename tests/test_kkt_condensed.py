@@ -14,8 +14,9 @@ import jaxhumanoid.validation.testproblems as tp
 from jaxhumanoid.model.params import ContactParams
 from jaxhumanoid.solvers.ipm import batch_solve_ipm, kkt, solve_ipm
 from jaxhumanoid.solvers.ipm.kkt import condensed
-from jaxhumanoid.strategy import solve as strat
+from jaxhumanoid.strategy.posture import reseat_for_contact
 from jaxhumanoid.strategy.problem import build_problem
+from jaxhumanoid.strategy.stage_one import STAGE1_DEFAULTS
 
 
 def staged(seed, S, nx, nc, reverse=False):
@@ -160,10 +161,10 @@ def test_ipm_takes_the_same_steps_with_either_kkt_solve():
         assert abs(member.objective - alone.objective) <= 1e-9 * abs(alone.objective)
     relaxed = ContactParams.relaxed()
     final = build_problem("T3", "A,F+C,2S", N=20)
-    q1, _ = strat.reseat_for_contact(final.p, final.p.q_start, final.layout.active, relaxed)
+    q1, _ = reseat_for_contact(final.p, final.p.q_start, final.layout.active, relaxed)
     prob = build_problem("T3", "A,F+C,2S", N=10, pseudo_static=True, contact=relaxed, q_start=q1)
     runs = [
-        solve_ipm(prob.nlp, prob.p, prob.bounds, options={**strat.STAGE1_DEFAULTS, "kkt_method": k})
+        solve_ipm(prob.nlp, prob.p, prob.bounds, options={**STAGE1_DEFAULTS, "kkt_method": k})
         for k in ("block_ldl", "condensed")
     ]
     assert runs[0].status == runs[1].status == "Solve_Succeeded"

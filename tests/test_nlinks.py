@@ -25,9 +25,11 @@ from jaxhumanoid.ocp import tasks
 from jaxhumanoid.ocp import transcription as tr
 from jaxhumanoid.ocp.scheme import parse_scheme
 from jaxhumanoid.outputs import plots, timeline
+from jaxhumanoid.strategy.handover import interpolate_full
 from jaxhumanoid.strategy.problem import build_problem
+from jaxhumanoid.strategy.settings import SolveSettings
 from jaxhumanoid.strategy.solution import Solution
-from jaxhumanoid.strategy.solve import interpolate_full, solve
+from jaxhumanoid.strategy.solve import solve
 from jaxhumanoid.validation import checks
 
 FOOT = FootParams.paper()
@@ -349,7 +351,7 @@ def test_two_links_lean_to_upright_one_stage(tmp_path):
 
 
 def test_three_links_squat_to_stand_two_stages(tmp_path):
-    sol = solve(TASKS[3], "A,F+C,2S", N=15, N1=8, T=3.0, model=CHAINS[3])
+    sol = solve(TASKS[3], "A,F+C,2S", N=15, T=3.0, model=CHAINS[3], settings=SolveSettings(N1=8))
     _check_solution(sol, 3, 15, tmp_path)
     assert len(sol.stages) == 3 and sol.warm_start["q"].shape == (16, 3)  # stage 1, relaxed law, continuation
 

@@ -17,6 +17,7 @@ NOTEBOOKS = sorted((pathlib.Path(__file__).resolve().parents[1] / "notebooks").g
 BEHIND_THE_API = (
     "jaxhumanoid.outputs.cli",
     "jaxhumanoid.runtime",
+    "jaxhumanoid.strategy.settings",
     "jaxhumanoid.strategy.solve",
     "jaxhumanoid.strategy.solution",
     "jaxhumanoid.strategy.problem",
@@ -68,7 +69,15 @@ def test_the_scanner_finds_internal_imports():
 
 
 def test_the_api_exports_what_the_notebooks_need():
-    for name in ("solve", "Solution", "build_problem", "enable_compilation_cache", "PlanarChain", "ContactParams"):
+    for name in (
+        "solve",
+        "SolveSettings",
+        "Solution",
+        "build_problem",
+        "enable_compilation_cache",
+        "PlanarChain",
+        "ContactParams",
+    ):
         assert name in jaxhumanoid.__all__ and hasattr(jaxhumanoid, name), name
 
 

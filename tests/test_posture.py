@@ -113,7 +113,7 @@ def test_bad_guess_is_rejected_by_name():
 @pytest.mark.parametrize("path", task_files(EXAMPLES), ids=lambda p: p.stem)
 def test_example_task_files_load_and_pose_equilibria(path):
     tf = load_task_file(path)
-    assert tf.task.n == tf.model.n and tf.settings["N"] >= 10
+    assert tf.task.n == tf.model.n and tf.keywords["N"] >= 10
     contact = tf.contact
     if "soft" not in path.stem:  # that one is moved to its equilibrium when it is solved
         assert margins(tf.model, tf.task.start, tf.task.active, contact=contact, foot=tf.foot).ok, path.name

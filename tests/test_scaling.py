@@ -18,7 +18,9 @@ import jaxhumanoid  # noqa: F401  (float64)
 from jaxhumanoid.ocp import scaling as sc
 from jaxhumanoid.ocp import transcription as tr
 from jaxhumanoid.strategy.problem import build_problem
-from jaxhumanoid.strategy.solve import _run_solver, solve
+from jaxhumanoid.strategy.runner import Runner
+from jaxhumanoid.strategy.settings import SolveSettings
+from jaxhumanoid.strategy.solve import solve
 
 sys.path.insert(0, str(pathlib.Path(__file__).parent))
 from test_nlinks import CHAINS, TASKS  # noqa: E402  (the small chains and their tasks)
@@ -92,8 +94,8 @@ def _stationarity(problem, res) -> float:
 @pytest.mark.parametrize("solver", ["ipopt", "ipm", "casadi"])
 def test_a_scaled_solve_comes_back_in_the_original_units(solver):
     problem = build_problem(TASKS[2], "A,F+C,1S", N=15, T=0.6, model=CHAINS[2])
-    plain = _run_solver(solver, problem, problem.bounds.x0, {}, False)
-    scaled = _run_solver(solver, problem, problem.bounds.x0, {}, False, scaling="physical")
+    plain = Runner(solver).run(problem, problem.bounds.x0, {}, "single stage")
+    scaled = Runner(solver, scaling="physical").run(problem, problem.bounds.x0, {}, "single stage")
     assert plain.success and scaled.success
     assert scaled.objective == pytest.approx(plain.objective, rel=1e-6)
     np.testing.assert_allclose(scaled.x, plain.x, atol=1e-4)
@@ -106,7 +108,8 @@ def test_a_scaled_solve_comes_back_in_the_original_units(solver):
 
 @pytest.mark.slow
 def test_three_backends_reach_one_optimum_through_the_scaled_two_stage_solve():
-    kw = dict(task=TASKS[2], scheme="A,F+C,2S", N=15, N1=8, T=0.6, model=CHAINS[2], scaling="physical")
+    settings = SolveSettings(N1=8, scaling="physical")
+    kw = dict(task=TASKS[2], scheme="A,F+C,2S", N=15, T=0.6, model=CHAINS[2], settings=settings)
     sols = {s: solve(solver=s, **kw) for s in ("ipopt", "ipm", "casadi")}
     assert all(sol.success for sol in sols.values())
     ref = sols["ipopt"]
@@ -117,4 +120,4 @@ def test_three_backends_reach_one_optimum_through_the_scaled_two_stage_solve():
 
 def test_an_unknown_scaling_is_refused_before_any_work():
     with pytest.raises(ValueError, match=r"scaling: expected one of \('none', 'physical'\), got 'unit'"):
-        solve("T1", scaling="unit")
+        SolveSettings(scaling="unit")

@@ -11,7 +11,9 @@ from jaxhumanoid.ocp import static_path as sp
 from jaxhumanoid.ocp import transcription as tr
 from jaxhumanoid.solvers.ipopt import solve_ipopt
 from jaxhumanoid.strategy import problem as pm
-from jaxhumanoid.strategy.solve import STAGE1_DEFAULTS, stage_one_problem
+from jaxhumanoid.strategy import solve as solve_module
+from jaxhumanoid.strategy.settings import SolveSettings
+from jaxhumanoid.strategy.stage_one import STAGE1_DEFAULTS, stage_one_problem
 
 N1 = 30
 
@@ -91,19 +93,18 @@ def test_stage_one_converges_from_the_path():
 
 
 def test_two_stage_solves_compute_the_path_for_stage_one_only(monkeypatch):
-    from jaxhumanoid.strategy import solve as strategy
-
     grids = []
     original = sp.static_path_guess
     monkeypatch.setattr(
         sp, "static_path_guess", lambda layout, *a, **k: grids.append(layout.N) or original(layout, *a, **k)
     )
 
-    def stage_one_only(task, scheme, solver, final, N1, *a):
-        stage_one_problem(task, scheme, final, N1, guess="static_path")
+    def stage_one_only(relaxed, settings, options, runner):
+        N1 = settings.stage1_grid(relaxed.layout.N)
+        stage_one_problem(relaxed.task, relaxed.scheme, relaxed, N1, guess=settings.guess)
         raise StopIteration
 
-    monkeypatch.setattr(strategy, "_stage_one", stage_one_only)
+    monkeypatch.setattr(solve_module, "stage_one", stage_one_only)
     with pytest.raises(StopIteration):
-        strategy.solve("T1", "A,F+C,2S", N=40, guess="static_path")
+        solve_module.solve("T1", "A,F+C,2S", N=40, settings=SolveSettings(guess="static_path"))
     assert grids == [N1]  # the final grid's problem starts from stage 1's solution: no path for it

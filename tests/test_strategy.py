@@ -10,9 +10,14 @@ from jaxhumanoid.model.params import ContactParams
 from jaxhumanoid.ocp import transcription as tr
 from jaxhumanoid.ocp.tasks import CONTACT_FORCE_LIMIT, get_task
 from jaxhumanoid.solvers.result import NLPResult
-from jaxhumanoid.strategy import solve as strat
+from jaxhumanoid.strategy import handover, stage_one
 from jaxhumanoid.strategy.posture import rest_foot_rows
-from jaxhumanoid.strategy.problem import build_problem
+from jaxhumanoid.strategy.problem import build_problem, with_guess
+from jaxhumanoid.strategy.runner import Runner
+from jaxhumanoid.strategy.settings import SolveSettings
+from jaxhumanoid.strategy.solve import solve
+
+DIRECT = SolveSettings(N1=5, guess="linear", handover="direct")
 
 
 def _fake_result(problem, x0, status="Solve_Succeeded", iterations=10) -> NLPResult:
@@ -35,7 +40,7 @@ def _fake_result(problem, x0, status="Solve_Succeeded", iterations=10) -> NLPRes
 @pytest.mark.slow
 @pytest.mark.parametrize("key", ["T2", "T3", "T4"])
 def test_two_stage_converges_on_every_task(key):
-    sol = strat.solve(key, "A,F+C,2S")
+    sol = solve(key, "A,F+C,2S")
     assert sol.success, [s.status for s in sol.stages]
 
 
@@ -43,16 +48,16 @@ def test_two_stage_converges_on_every_task(key):
 def test_failed_stage_one_retries_with_the_fallback_and_counts_every_run(monkeypatch, solver):
     calls = []
 
-    def fake_run(solver, problem, x0, options, verbose, progress=None, scaling="none"):
+    def fake_run(runner, problem, x0, options, stage):
         calls.append((problem.layout.N, dict(options), np.array(x0), problem))
         fail = problem.layout.pseudo_static and len(calls) == 1
         return _fake_result(problem, x0, "Infeasible_Problem_Detected" if fail else "Solve_Succeeded", 100 + len(calls))
 
-    monkeypatch.setattr(strat, "_run_solver", fake_run)
-    paper = dict(guess="linear", handover="direct", stage1_solver="same")
-    sol = strat.solve("T1", "A,F+C,2S", solver=solver, N=10, N1=5, **paper)
+    monkeypatch.setattr(Runner, "run", fake_run)
+    paper = SolveSettings(N1=5, guess="linear", handover="direct", stage1_solver="same")
+    sol = solve("T1", "A,F+C,2S", solver=solver, N=10, settings=paper)
     assert [c[0] for c in calls] == [5, 5, 10]
-    assert calls[0][1]["mu_init"] == strat.STAGE1_DEFAULTS["mu_init"] and "mu_strategy" not in calls[0][1]
+    assert calls[0][1]["mu_init"] == stage_one.STAGE1_DEFAULTS["mu_init"] and "mu_strategy" not in calls[0][1]
     assert "mu_strategy" not in calls[1][1]  # the first fallback: the same options from the other guess
     first, second = sol.stages
     assert first.attempts == 2 and first.success and first.status == "Solve_Succeeded"
@@ -61,43 +66,43 @@ def test_failed_stage_one_retries_with_the_fallback_and_counts_every_run(monkeyp
     # a stage 1 that fails in every run is reported as failed, and stage 2 still runs from it
     calls.clear()
     failing = lambda *a: dataclasses.replace(fake_run(*a), status="Error", success=False)  # noqa: E731
-    monkeypatch.setattr(strat, "_run_solver", failing)
-    sol = strat.solve("T1", "A,F+C,2S", solver=solver, N=10, N1=5, **paper)
+    monkeypatch.setattr(Runner, "run", failing)
+    sol = solve("T1", "A,F+C,2S", solver=solver, N=10, settings=paper)
     # T1 has no force limit: the runs that only lift it are skipped, those with twice the torque box run
-    kept = [fb for fb in strat.STAGE1_FALLBACKS if not fb.lift_force_limit or fb.strength != 1.0]
+    kept = [fb for fb in stage_one.STAGE1_FALLBACKS if not fb.lift_force_limit or fb.strength != 1.0]
     runs = 1 + len(kept)
     assert len(calls) == runs + 1 and sol.stages[0].status == "Error" and sol.stages[0].attempts == runs
     assert not sol.success and not sol.stages[0].force_limit_lifted and sol.stages[0].strength_factor == 1.0
     u_max = [np.max(c[3].full(c[3].bounds.xu)[:-1, c[3].layout.stage_slices()["u"]]) for c in calls]
     assert u_max[:-3] == [u_max[0]] * (runs - 2) and u_max[-3:-1] == [2 * u_max[0]] * 2
-    assert u_max[-1] * strat.STAGE1_STRENGTH == u_max[0]  # stage 2 keeps the body's box
+    assert u_max[-1] * stage_one.STAGE1_STRENGTH == u_max[0]  # stage 2 keeps the body's box
     x = [c[2] for c in calls[:runs]]
     adaptive = ["mu_strategy" in c[1] for c in calls[:runs]]
     assert adaptive == [False] + [fb.options.get("mu_strategy") == "adaptive" for fb in kept]
     # the other guess is the inverse-dynamics one of the same stage-1 problem
-    np.testing.assert_array_equal(x[1], strat.with_guess(calls[0][3], "inverse_dynamics").bounds.x0)
+    np.testing.assert_array_equal(x[1], with_guess(calls[0][3], "inverse_dynamics").bounds.x0)
     assert np.max(np.abs(x[1] - x[0])) > 1.0  # torques and forces of the inverse dynamics
     np.testing.assert_array_equal(x[2], x[0])
     np.testing.assert_array_equal(x[3], x[1])
     # the restarts move a guess by about STAGE1_RESTART_SIGMA, the same way for one seed
-    assert 0 < np.max(np.abs(x[4] - x[0])) < 10 * strat.STAGE1_RESTART_SIGMA
-    assert 0 < np.max(np.abs(x[5] - x[1])) < 10 * strat.STAGE1_RESTART_SIGMA
+    assert 0 < np.max(np.abs(x[4] - x[0])) < 10 * stage_one.STAGE1_RESTART_SIGMA
+    assert 0 < np.max(np.abs(x[5] - x[1])) < 10 * stage_one.STAGE1_RESTART_SIGMA
     np.testing.assert_array_equal(x[6], x[4])
 
 
 def test_stage_one_of_a_task_with_a_force_limit_falls_back_to_none_and_stage_two_keeps_it(monkeypatch):
     calls = []
 
-    def fake_run(solver, problem, x0, options, verbose, progress=None, scaling="none"):
+    def fake_run(runner, problem, x0, options, stage):
         calls.append((problem, np.array(x0)))
         limited = problem.task.contact_force_limit is not None
         fail = problem.layout.pseudo_static and limited
         return _fake_result(problem, x0, "Infeasible_Problem_Detected" if fail else "Solve_Succeeded", 7)
 
-    monkeypatch.setattr(strat, "_run_solver", fake_run)
+    monkeypatch.setattr(Runner, "run", fake_run)
     with pytest.warns(UserWarning, match="stage 1 failed .* solved with no contact-force limit; "):
-        sol = strat.solve("T3", "A,F+C,2S", N=10, N1=5, guess="linear", handover="direct")
-    runs = 2 + sum(not fb.lift_force_limit for fb in strat.STAGE1_FALLBACKS)
+        sol = solve("T3", "A,F+C,2S", N=10, settings=DIRECT)
+    runs = 2 + sum(not fb.lift_force_limit for fb in stage_one.STAGE1_FALLBACKS)
     first, second = sol.stages
     assert first.success and first.force_limit_lifted and first.attempts == runs and first.iterations == 7 * runs
     assert [c[0].task.contact_force_limit for c in calls] == [2.0] * (runs - 1) + [None, 2.0]
@@ -114,39 +119,39 @@ def test_stage_one_of_a_task_with_a_force_limit_falls_back_to_none_and_stage_two
     assert not second.force_limit_lifted and first.strength_factor == 1.0
     # the same task in which stage 1 succeeds under its limit never lifts it
     calls.clear()
-    monkeypatch.setattr(strat, "_run_solver", lambda *a, **k: _fake_result(a[1], a[2]))
-    sol = strat.solve("T3", "A,F+C,2S", N=10, N1=5, guess="linear", handover="direct")
+    monkeypatch.setattr(Runner, "run", lambda *a, **k: _fake_result(a[1], a[2]))
+    sol = solve("T3", "A,F+C,2S", N=10, settings=DIRECT)
     assert sol.stages[0].attempts == 1 and not sol.stages[0].force_limit_lifted
 
 
 def test_stage_one_that_fails_within_the_strengths_falls_back_to_twice_the_torque_box(monkeypatch):
-    def fake_run(solver, problem, x0, options, verbose, progress=None, scaling="none"):
+    def fake_run(runner, problem, x0, options, stage):
         u_max = np.max(problem.full(problem.bounds.xu)[:-1, problem.layout.stage_slices()["u"]])
-        strong = u_max > 2 * strat.STAGE1_STRENGTH * 300.0
+        strong = u_max > 2 * stage_one.STAGE1_STRENGTH * 300.0
         fail = problem.layout.pseudo_static and not strong  # the strongest joint holds 500 N m
         return _fake_result(problem, x0, "Infeasible_Problem_Detected" if fail else "Solve_Succeeded", 3)
 
-    monkeypatch.setattr(strat, "_run_solver", fake_run)
+    monkeypatch.setattr(Runner, "run", fake_run)
     with pytest.warns(
         UserWarning, match=r"solved with stage 1's torque box x2; the dynamic stages keep the task's bounds"
     ):
-        sol = strat.solve("T1", "A,F+C,2S", N=10, N1=5, guess="linear", handover="direct")
+        sol = solve("T1", "A,F+C,2S", N=10, settings=DIRECT)
     first = sol.stages[0]
     assert sol.success and first.strength_factor == 2.0 and not first.force_limit_lifted
-    assert first.attempts == 2 + sum(not fb.lift_force_limit for fb in strat.STAGE1_FALLBACKS)
-    final = strat.build_problem("T1", "A,F+C,2S", N=10)
-    u_max = np.asarray(strat.build_problem("T1", "A,F+C,1S", N=5).model.u_max)
-    body = strat.stage_one_problem("T1", "A,F+C,2S", final, 5, strength=2.0)
+    assert first.attempts == 2 + sum(not fb.lift_force_limit for fb in stage_one.STAGE1_FALLBACKS)
+    final = build_problem("T1", "A,F+C,2S", N=10)
+    u_max = np.asarray(build_problem("T1", "A,F+C,1S", N=5).model.u_max)
+    body = stage_one.stage_one_problem("T1", "A,F+C,2S", final, 5, strength=2.0)
     np.testing.assert_array_equal(body.model.u_max, 2.0 * u_max)
     # stage 1 poses the body with STAGE1_STRENGTH times its torque box; the final problem keeps it
-    default = strat.stage_one_problem("T1", "A,F+C,2S", final, 5)
-    np.testing.assert_array_equal(default.model.u_max, strat.STAGE1_STRENGTH * u_max)
+    default = stage_one.stage_one_problem("T1", "A,F+C,2S", final, 5)
+    np.testing.assert_array_equal(default.model.u_max, stage_one.STAGE1_STRENGTH * u_max)
     np.testing.assert_array_equal(final.model.u_max, u_max)
 
 
 def test_law_path_runs_geometrically_from_the_relaxed_to_the_nominal_law():
-    first, last = strat.ContactParams.relaxed(), strat.ContactParams.nominal()
-    laws = strat.law_path(first, last, 4)
+    first, last = ContactParams.relaxed(), ContactParams.nominal()
+    laws = handover.law_path(first, last, 4)
     assert len(laws) == 5 and laws[-1] is last
     for k in ("kappa", "f0", "xhat"):
         values = np.array([float(getattr(law, k)) for law in laws])
@@ -156,8 +161,8 @@ def test_law_path_runs_geometrically_from_the_relaxed_to_the_nominal_law():
 
 def test_with_law_reseats_the_start_so_that_it_stays_the_same_equilibrium():
     final = build_problem("T1", "A,F+C,2S", N=10)
-    relaxed = strat.with_law(final, strat.ContactParams.relaxed())
-    assert relaxed.nlp is final.nlp and strat.with_law(final, final.p.contact) is final
+    relaxed = handover.with_law(final, ContactParams.relaxed())
+    assert relaxed.nlp is final.nlp and handover.with_law(final, final.p.contact) is final
     moved = np.abs(np.asarray(relaxed.p.q_start) - np.asarray(final.p.q_start)).max()
     assert 1e-6 < moved < 0.05  # the relaxed law (f0 = 300 N) needs another gap for the same load
     active = final.layout.active
@@ -179,48 +184,48 @@ def test_with_law_reseats_the_start_so_that_it_stays_the_same_equilibrium():
 def test_continuation_hands_over_along_the_law_path_and_stops_at_a_failure(monkeypatch, solver):
     calls = []
 
-    def fake_run(used, problem, x0, options, verbose, progress=None, scaling="none"):
-        calls.append((used, problem.layout.pseudo_static, float(problem.p.contact.kappa), dict(options)))
+    def fake_run(runner, problem, x0, options, stage):
+        calls.append((runner.solver, problem.layout.pseudo_static, float(problem.p.contact.kappa), dict(options)))
         fail = len(calls) == fail_at
         return _fake_result(problem, x0, "Restoration_Failed" if fail else "Solve_Succeeded", 10 + len(calls))
 
-    monkeypatch.setattr(strat, "_run_solver", fake_run)
+    monkeypatch.setattr(Runner, "run", fake_run)
     fail_at = 0
-    kw = dict(N=10, N1=5, handover="continuation", continuation_steps=3, stage1_solver="casadi")
-    sol = strat.solve("T1", "A,F+C,2S", solver=solver, **kw)
-    laws = strat.law_path(strat.ContactParams.relaxed(), strat.ContactParams.nominal(), 3)
+    kw = dict(N=10, settings=SolveSettings(N1=5, handover="continuation", continuation_steps=3, stage1_solver="casadi"))
+    sol = solve("T1", "A,F+C,2S", solver=solver, **kw)
+    laws = handover.law_path(ContactParams.relaxed(), ContactParams.nominal(), 3)
     assert [c[0] for c in calls] == ["casadi", "casadi"] + [solver] * 3
     assert [c[1] for c in calls] == [True] + [False] * 4
     np.testing.assert_allclose([c[2] for c in calls[1:]], [float(law.kappa) for law in laws])
-    assert calls[1][3]["mu_init"] == strat.STAGE2_DEFAULTS["mu_init"]
-    assert all(c[3]["mu_init"] == strat.CONTINUATION_OPTIONS["mu_init"] for c in calls[2:])
+    assert calls[1][3]["mu_init"] == handover.STAGE2_DEFAULTS["mu_init"]
+    assert all(c[3]["mu_init"] == handover.CONTINUATION_OPTIONS["mu_init"] for c in calls[2:])
     assert [s.runs for s in sol.stages] == [(11,), (12,), (13, 14, 15)] and sol.success
     assert sol.stages[2].iterations == 13 + 14 + 15 and sol.stages[2].attempts == 3
     calls.clear()
     fail_at = 4  # the second law of stage 2, once: rerun from the same start with the cold barrier
-    sol = strat.solve("T1", "A,F+C,2S", solver=solver, **kw)
+    sol = solve("T1", "A,F+C,2S", solver=solver, **kw)
     assert len(calls) == 6 and sol.success and sol.stages[2].runs == (13, 14, 15, 16)
-    assert calls[4][2] == calls[3][2] and calls[4][3]["mu_init"] == strat.DYNAMIC_FALLBACKS[0]["mu_init"]
-    assert calls[5][3]["mu_init"] == strat.CONTINUATION_OPTIONS["mu_init"]  # the next law: the small barrier again
+    assert calls[4][2] == calls[3][2] and calls[4][3]["mu_init"] == handover.DYNAMIC_FALLBACKS[0]["mu_init"]
+    assert calls[5][3]["mu_init"] == handover.CONTINUATION_OPTIONS["mu_init"]  # the next law: the small barrier again
 
 
 @pytest.mark.parametrize("solver", ["ipopt", "ipm"])
 def test_a_law_of_the_continuation_that_no_rerun_solves_ends_the_path_with_its_law(monkeypatch, solver):
     calls = []
-    laws = strat.law_path(strat.ContactParams.relaxed(), strat.ContactParams.nominal(), 3)
+    laws = handover.law_path(ContactParams.relaxed(), ContactParams.nominal(), 3)
 
-    def fake_run(used, problem, x0, options, verbose, progress=None, scaling="none"):
+    def fake_run(runner, problem, x0, options, stage):
         calls.append((np.asarray(x0).copy(), dict(options)))
         fail = float(problem.p.contact.kappa) == float(laws[2].kappa)  # the second law of stage 2
         return _fake_result(problem, x0 + 1.0, "Restoration_Failed" if fail else "Solve_Succeeded", 10 + len(calls))
 
-    monkeypatch.setattr(strat, "_run_solver", fake_run)
-    kw = dict(N=10, N1=5, handover="continuation", continuation_steps=3)
-    sol = strat.solve("T1", "A,F+C,2S", solver=solver, **kw)
-    reruns = len(strat.DYNAMIC_FALLBACKS)
+    monkeypatch.setattr(Runner, "run", fake_run)
+    kw = dict(N=10, settings=SolveSettings(N1=5, handover="continuation", continuation_steps=3))
+    sol = solve("T1", "A,F+C,2S", solver=solver, **kw)
+    reruns = len(handover.DYNAMIC_FALLBACKS)
     assert len(calls) == 4 + reruns and not sol.success
     assert sol.stages[2].status == "Restoration_Failed (law 2/3)" and sol.stages[2].runs == (13, 14, 15, 16)
-    for k, rerun in enumerate(strat.DYNAMIC_FALLBACKS, start=4):
+    for k, rerun in enumerate(handover.DYNAMIC_FALLBACKS, start=4):
         np.testing.assert_array_equal(calls[k][0], calls[3][0])  # every rerun starts where the law's first run did
         assert {key: calls[k][1].get(key) for key in rerun} == rerun
 
@@ -233,19 +238,19 @@ def test_failed_relaxed_law_dynamic_solve_reruns_from_the_same_start_with_a_cold
     rerun's status when none does."""
     calls = []
 
-    def fake_run(used, problem, x0, options, verbose, progress=None, scaling="none"):
+    def fake_run(runner, problem, x0, options, stage):
         calls.append((problem.layout.pseudo_static, np.asarray(x0).copy(), dict(options)))
         fail = not problem.layout.pseudo_static and 2 <= len(calls) <= 1 + fails
         return _fake_result(
             problem, x0 if not fail else x0 + 1.0, "Infeasible_Problem_Detected" if fail else "Solve_Succeeded"
         )
 
-    monkeypatch.setattr(strat, "_run_solver", fake_run)
-    sol = strat.solve("T1", "A,F+C,2S", N=10, N1=5, continuation_steps=2)
+    monkeypatch.setattr(Runner, "run", fake_run)
+    sol = solve("T1", "A,F+C,2S", N=10, settings=SolveSettings(N1=5, continuation_steps=2))
     relaxed, runs = sol.stages[1], min(fails + 1, 3)
     assert relaxed.runs == (10,) * runs and relaxed.attempts == runs
-    assert calls[1][2]["mu_init"] == strat.STAGE2_DEFAULTS["mu_init"]
-    for k, rerun in enumerate(strat.DYNAMIC_FALLBACKS[: runs - 1], start=2):
+    assert calls[1][2]["mu_init"] == handover.STAGE2_DEFAULTS["mu_init"]
+    for k, rerun in enumerate(handover.DYNAMIC_FALLBACKS[: runs - 1], start=2):
         np.testing.assert_array_equal(calls[k][1], calls[1][1])  # every rerun starts where the first run did
         assert {key: calls[k][2].get(key) for key in rerun} == rerun
     assert calls[2][2].get("mu_strategy") != "adaptive"  # the cold monotone rerun comes first
@@ -259,11 +264,11 @@ def test_failed_relaxed_law_dynamic_solve_reruns_from_the_same_start_with_a_cold
 
 def test_bad_handover_settings_are_rejected_before_any_work():
     with pytest.raises(ValueError, match="handover"):
-        strat.solve("T1", handover="homotopy")
+        SolveSettings(handover="homotopy")
     with pytest.raises(ValueError, match="continuation_steps"):
-        strat.solve("T1", handover="continuation", continuation_steps=0)
+        SolveSettings(handover="continuation", continuation_steps=0)
     with pytest.raises(ValueError, match="stage1_solver"):
-        strat.solve("T1", stage1_solver="snopt")
+        SolveSettings(stage1_solver="snopt")
 
 
 def test_relaxed_stage_problem_steps_towards_the_nominal_law_where_the_relaxed_law_unseats_the_start(monkeypatch):
@@ -277,30 +282,30 @@ def test_relaxed_stage_problem_steps_towards_the_nominal_law_where_the_relaxed_l
     relaxed = ContactParams.relaxed()
 
     def rows(law_j):
-        q = strat.with_law(final, law_j).p.q_start
+        q = handover.with_law(final, law_j).p.q_start
         return rest_foot_rows(final.model, final.p.foot, law_j, q, final.layout.active)[0]
 
-    got, step = strat.relaxed_stage_problem(final, relaxed, 4)
-    path = strat.law_path(relaxed, law, 4)
+    got, step = handover.relaxed_stage_problem(final, relaxed, 4)
+    path = handover.law_path(relaxed, law, 4)
     assert step == 1 and got.p.contact == path[1] and got.nlp is final.nlp
-    np.testing.assert_array_equal(got.p.q_start, strat.with_law(final, path[1]).p.q_start)
+    np.testing.assert_array_equal(got.p.q_start, handover.with_law(final, path[1]).p.q_start)
     assert rows(relaxed).min() < -10.0 and rows(path[1]).min() >= 0.0  # the check can fail: the relaxed law breaks (5)
     nominal = build_problem(get_task("T1"), "A,F+C,2S", N=10, T=5.0)
-    seated, step = strat.relaxed_stage_problem(nominal, relaxed, 4)
+    seated, step = handover.relaxed_stage_problem(nominal, relaxed, 4)
     assert step == 0 and seated.p.contact == relaxed
     kappas, starts = [], []
 
-    def fake_run(used, problem, x0, options, verbose, progress=None, scaling="none"):
+    def fake_run(runner, problem, x0, options, stage):
         kappas.append(float(problem.p.contact.kappa))
         starts.append(np.asarray(problem.p.q_start))
         return _fake_result(problem, x0)
 
-    monkeypatch.setattr(strat, "_run_solver", fake_run)
+    monkeypatch.setattr(Runner, "run", fake_run)
     task = dataclasses.replace(get_task("T1"), start=start)
     with pytest.warns(UserWarning, match="relaxed-law stages use law 1/4"):
-        sol = strat.solve(task, "A,F+C,2S", N=10, N1=5, contact=law, continuation_steps=4)
+        sol = solve(task, "A,F+C,2S", N=10, contact=law, settings=SolveSettings(N1=5, continuation_steps=4))
     assert sol.stages[0].law_step == 1 and [s.law_step for s in sol.stages[1:]] == [0, 0]
-    np.testing.assert_allclose(kappas, [path[1].kappa] + [float(g.kappa) for g in strat.law_path(path[1], law, 4)])
+    np.testing.assert_allclose(kappas, [path[1].kappa] + [float(g.kappa) for g in handover.law_path(path[1], law, 4)])
     # stage 1 and the relaxed-law dynamic solve start from the one posture seated for law 1
     np.testing.assert_array_equal(starts[0], starts[1])
     np.testing.assert_allclose(starts[0], got.p.q_start, atol=1e-5)  # solve seats the start first (5e-7 rad)
@@ -308,15 +313,15 @@ def test_relaxed_stage_problem_steps_towards_the_nominal_law_where_the_relaxed_l
 
 def test_stage_two_start_takes_velocities_from_the_interpolated_positions():
     final = build_problem("T1", "A,F+C,2S", N=20)
-    first = strat.stage_one_problem("T1", "A,F+C,2S", final, 8)
+    first = stage_one.stage_one_problem("T1", "A,F+C,2S", final, 8)
     sl = final.layout.stage_slices()
     # a stage-1 point whose node velocities alternate about the motion's, as (6a) allows in (8)
     Z1 = np.array(first.full(first.bounds.x0))
     t1 = np.linspace(0.0, float(final.p.T), 9)
     Z1[:, sl["q"]] = np.sin(t1)[:, None] * np.arange(1.0, 6.0)
     Z1[1:, sl["qd"]] = np.cos(t1[1:])[:, None] * np.arange(1.0, 6.0) + 3.0 * (-1.0) ** np.arange(8)[:, None]
-    x0, Zf = strat.stage_two_start(Z1, final)
-    plain = strat.interpolate_full(Z1, float(final.p.T), final.layout)
+    x0, Zf = handover.stage_two_start(Z1, final)
+    plain = handover.interpolate_full(Z1, float(final.p.T), final.layout)
     h = float(final.p.T) / 20
     q = Zf[:, sl["q"]]
     assert np.array_equal(q, plain[:, sl["q"]]) and np.array_equal(Zf[:, sl["u"]], plain[:, sl["u"]])

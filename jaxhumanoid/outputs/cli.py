@@ -31,9 +31,10 @@ from jaxhumanoid.progress import IterationLine, Progress
 from jaxhumanoid.runtime import enable_compilation_cache, writable_dir
 from jaxhumanoid.solvers import ipopt_capi
 from jaxhumanoid.strategy.posture import find_equilibrium
-from jaxhumanoid.strategy.problem import DEFAULT_GUESS, GUESSES, Problem, problem_from_settings, stage_problem
+from jaxhumanoid.strategy.problem import GUESSES, Problem, problem_from_settings, stage_problem
+from jaxhumanoid.strategy.settings import HANDOVERS, SolveSettings
 from jaxhumanoid.strategy.solution import Solution
-from jaxhumanoid.strategy.solve import DEFAULT_HANDOVER, DEFAULT_STAGE1_SOLVER, HANDOVERS, check_arguments, solve
+from jaxhumanoid.strategy.solve import check_arguments, solve
 from jaxhumanoid.strategy.taskfile import load_task_file, solve_kwargs, task_files
 from jaxhumanoid.studies import ENGINES, sweep
 from jaxhumanoid.tracking import montecarlo
@@ -118,41 +119,42 @@ def _save(sol, out: pathlib.Path) -> dict:
     return report
 
 
-SOLVE_DEFAULTS = {
-    "scheme": "A,F+C,2S",
-    "solver": "ipopt",
-    "N": 100,
-    "T": 5.0,
-    "N1": None,
-    "guess": DEFAULT_GUESS,
-    "handover": DEFAULT_HANDOVER,
-    "stage1_solver": DEFAULT_STAGE1_SOLVER,
-    "scaling": "none",
-}
+# ``solve``'s own keywords that ``solve`` flags set, with solve's defaults
+SOLVE_DEFAULTS = {"scheme": "A,F+C,2S", "solver": "ipopt", "N": 100, "T": 5.0}
+# the ``SolveSettings`` fields that ``solve`` flags set (``--foot-margin`` too)
+SETTINGS_FLAGS = ("N1", "guess", "handover", "stage1_solver", "scaling")
 
 
 def solve_arguments(args) -> dict:
     """The keyword arguments of ``solve`` from the command line: a ``--task-file`` gives the body,
     the laws, the task and its settings; flags given on the command line override the file."""
-    base = {"task": args.task or "T1"}
-    settings = dict(SOLVE_DEFAULTS)
+    base: dict = {"task": args.task or "T1"}
+    keywords, settings = dict(SOLVE_DEFAULTS), SolveSettings()
     if args.task_file:
         if args.task:
             raise ValueError("--task, --task-file: give one of them")
-        kwargs = load_task_file(args.task_file).as_solve_kwargs()
-        settings.update({k: kwargs.pop(k) for k in list(kwargs) if k in SOLVE_DEFAULTS})
-        base = kwargs
-    settings.update({k: getattr(args, k) for k in SOLVE_DEFAULTS if getattr(args, k) is not None})
+        base = load_task_file(args.task_file).as_solve_kwargs()
+        keywords.update({k: base.pop(k) for k in list(base) if k in SOLVE_DEFAULTS})
+        settings = base.pop("settings")
+    keywords.update({k: getattr(args, k) for k in SOLVE_DEFAULTS if getattr(args, k) is not None})
+    flags = {k: getattr(args, k) for k in SETTINGS_FLAGS if getattr(args, k, None) is not None}
     if getattr(args, "foot_margin", None) is not None:
-        base["foot_margin"] = FootMargin(*args.foot_margin)
+        flags["foot_margin"] = FootMargin(*args.foot_margin)
+    settings = SolveSettings.from_mapping({**_fields(settings), **flags}, "command line")
     if getattr(args, "contact_force_limit", None) is not None:
         base["task"] = with_force_limit(base["task"], args.contact_force_limit)
-    return {**base, **settings}
+    return {**base, **keywords, "settings": settings}
+
+
+def _fields(settings: SolveSettings) -> dict:
+    """The fields of ``settings`` by name (the values themselves, not copies)."""
+    return {f.name: getattr(settings, f.name) for f in dataclasses.fields(settings)}
 
 
 def check_settings(kwargs: dict) -> None:
     """The settings of a solve from the command line and a task file, checked before any work as
-    ``solve`` checks them (``strategy.solve.check_arguments``): what they reject exits with status 2."""
+    ``solve`` checks them (``strategy.solve.check_arguments``; the settings checked themselves when
+    they were made): what they reject exits with status 2."""
     check_arguments(**kwargs)
 
 

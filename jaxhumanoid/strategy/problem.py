@@ -190,19 +190,21 @@ def stage_problem(
     return build_problem(task, scheme, N=N, pseudo_static=pseudo_static, contact=contact, model=model, foot=foot)
 
 
-def problem_from_settings(settings: dict, scheme: str, N: int) -> Problem:
+def problem_from_settings(kwargs: dict, scheme: str, N: int) -> Problem:
     """The problem of a task's ``solve`` keyword arguments (a task file's ``as_solve_kwargs``, a
-    study case's) on ``scheme`` and ``N`` intervals: their task, body, laws, weights, horizon,
-    initial guess and foot margin (the solver settings are not part of the problem)."""
+    study case's) on ``scheme`` and ``N`` intervals: their task, body, laws, weights, horizon, and
+    their ``settings``' initial guess and foot margin (the solver settings are not part of the
+    problem)."""
+    settings = kwargs.get("settings")  # a SolveSettings or None (the defaults)
     return build_problem(
-        settings["task"],
+        kwargs["task"],
         scheme,
         N=N,
-        T=float(settings.get("T") or 5.0),
-        model=settings.get("model"),
-        foot=settings.get("foot"),
-        contact=settings.get("contact"),
-        weights=settings.get("weights"),
-        guess=settings.get("guess", DEFAULT_GUESS),
-        foot_margin=settings.get("foot_margin"),
+        T=float(kwargs.get("T") or 5.0),
+        model=kwargs.get("model"),
+        foot=kwargs.get("foot"),
+        contact=kwargs.get("contact"),
+        weights=kwargs.get("weights"),
+        guess=DEFAULT_GUESS if settings is None else settings.guess,
+        foot_margin=None if settings is None else settings.foot_margin,
     )

@@ -26,12 +26,16 @@
     [solve]    scheme = "A,F+C,2S"; solver = "ipopt"; N = 60; T = 4.0; N1 = 20    # optional
                guess = "static_path"       # or "inverse_dynamics" (default), "linear": the initial guess
                handover = "direct"         # or "continuation" (default): stage 1 to stage 2
+               continuation_steps = 2      #   laws of the continuation after stage 1's (default 2)
                stage1_solver = "same"      # or "ipopt" (default): the solver of the relaxed-law stages
                scaling = "physical"        # or "none" (default): the NLPs in units of O(1)
+               stage1_options = {...}; stage2_options = {...}   # per-stage solver options
     [options]  tol = 1e-8                # solver options, optional
 
 Angles follow the package's convention (relative joint angles, ``jaxhumanoid.model``). Every
-field is checked on loading, and an error names the file, the table and the field.
+field is checked on loading, and an error names the file, the table and the field. ``[solve]``'s
+scheme, solver, N and T are ``solve``'s own keywords; its other keys, ``[contact_stage1]`` and
+``[foot_margin]`` make the file's ``SolveSettings``.
 """
 
 from __future__ import annotations
@@ -48,8 +52,14 @@ from jaxhumanoid.model.params import ContactParams, FootParams, PlanarChain
 from jaxhumanoid.ocp import tasks
 from jaxhumanoid.ocp.tasks import Task, Weights
 from jaxhumanoid.runtime import read_toml
+from jaxhumanoid.strategy.settings import SolveSettings
 
 PRESETS = {"humanoid": PlanarChain.humanoid}
+# [solve]'s keys that are ``solve``'s own keywords; the others are ``SolveSettings`` fields, all but
+# the two that have tables of their own
+SOLVE_KEYWORDS = ("scheme", "solver", "N", "T")
+_OWN_TABLES = {"contact_stage1", "foot_margin"}
+SOLVE_TABLE = {*SOLVE_KEYWORDS, *(f.name for f in dataclasses.fields(SolveSettings))} - _OWN_TABLES
 TABLES = {
     "name": None,
     "key": None,
@@ -86,36 +96,35 @@ TABLES = {
         "contact_force_limit",
     },
     "weights": {"w_u", "w_qd", "w_dqd", "w_du"},
-    "solve": {"scheme", "solver", "N", "T", "N1", "guess", "handover", "stage1_solver", "scaling"},
+    "solve": SOLVE_TABLE,
     "options": None,
 }
 
 
 @dataclasses.dataclass(frozen=True)
 class TaskFile:
-    """What a task file defines: ``solve(**as_solve_kwargs())`` solves it."""
+    """What a task file defines: ``solve(**as_solve_kwargs())`` solves it. ``keywords``: the
+    ``[solve]`` table's scheme, solver, N and T (those it gives); ``settings``: the strategy's
+    settings from the rest of ``[solve]``, ``[contact_stage1]`` and ``[foot_margin]``."""
 
     path: pathlib.Path
     task: Task
     model: PlanarChain
     foot: FootParams | None
     contact: ContactParams | None
-    contact_stage1: ContactParams | None
-    settings: dict
+    keywords: dict
+    settings: SolveSettings
     options: dict
-    foot_margin: FootMargin | None = None
 
     def as_solve_kwargs(self) -> dict[str, Any]:
-        margin = {} if self.foot_margin is None else {"foot_margin": self.foot_margin}
         return dict(
             task=self.task,
             model=self.model,
             foot=self.foot,
             contact=self.contact,
-            contact_stage1=self.contact_stage1,
             options=self.options or None,
-            **margin,
-            **self.settings,
+            settings=self.settings,
+            **self.keywords,
         )
 
 
@@ -230,5 +239,8 @@ def load_task_file(path) -> TaskFile:
         )
     except (TypeError, ValueError) as err:
         raise ValueError(f"{path}: {err}") from err
-    settings = dict(data.get("solve", {}))
-    return TaskFile(path, task, model, foot, contact, stage1, settings, dict(data.get("options", {})), margin)
+    table = data.get("solve", {})
+    keywords = {k: v for k, v in table.items() if k in SOLVE_KEYWORDS}
+    rest = {k: v for k, v in table.items() if k not in SOLVE_KEYWORDS}
+    settings = SolveSettings.from_mapping({**rest, "contact_stage1": stage1, "foot_margin": margin}, f"{path}: [solve]")
+    return TaskFile(path, task, model, foot, contact, keywords, settings, dict(data.get("options", {})))

@@ -26,8 +26,11 @@ from jaxhumanoid.ocp.scheme import parse_scheme
 from jaxhumanoid.ocp.tasks import NO_FORCE_LIMIT, Task, with_force_limit
 from jaxhumanoid.runtime import environment
 from jaxhumanoid.solvers.ipopt import solve_ipopt
-from jaxhumanoid.strategy import solve as strat
+from jaxhumanoid.strategy.handover import stage_two_start
+from jaxhumanoid.strategy.posture import reseat_for_contact
 from jaxhumanoid.strategy.problem import Problem, build_problem
+from jaxhumanoid.strategy.settings import STAGE1_N
+from jaxhumanoid.strategy.stage_one import STAGE1_DEFAULTS
 
 SCHEME = "A,F+C,2S"
 REPO = pathlib.Path(__file__).resolve().parents[2]
@@ -89,13 +92,13 @@ def bench_task(key: str) -> Task:
     return with_force_limit(key, NO_FORCE_LIMIT)
 
 
-def stage1_problem(task: str, N1: int = strat.STAGE1_N) -> tuple[Problem, Problem]:
+def stage1_problem(task: str, N1: int = STAGE1_N) -> tuple[Problem, Problem]:
     """Stage 1 of 2S (pseudo-static, relaxed contact law, re-seated start) of ``bench_task(task)``,
     and its stage-2 problem (N = 100)."""
     t = bench_task(task)
     final = build_problem(t, parse_scheme(SCHEME), N=100)
     relaxed = ContactParams.relaxed()
-    q1, _ = strat.reseat_for_contact(final.p, final.p.q_start, final.layout.active, relaxed)
+    q1, _ = reseat_for_contact(final.p, final.p.q_start, final.layout.active, relaxed)
     first = build_problem(t, parse_scheme(SCHEME), N=N1, pseudo_static=True, contact=relaxed, q_start=q1)
     return first, final
 
@@ -103,8 +106,8 @@ def stage1_problem(task: str, N1: int = strat.STAGE1_N) -> tuple[Problem, Proble
 def stage2_warm_start(task: str) -> tuple[Problem, np.ndarray]:
     """The stage-2 problem and its 2S start from IPOPT's stage-1 solution (``stage_two_start``)."""
     first, prob = stage1_problem(task)
-    r1 = solve_ipopt(first.nlp, first.p, first.bounds, options=strat.STAGE1_DEFAULTS)
-    return prob, strat.stage_two_start(first.full(r1.x), prob)[0]
+    r1 = solve_ipopt(first.nlp, first.p, first.bounds, options=STAGE1_DEFAULTS)
+    return prob, stage_two_start(first.full(r1.x), prob)[0]
 
 
 def git_state(root: pathlib.Path | str = REPO) -> dict[str, Any]:

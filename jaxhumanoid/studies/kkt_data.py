@@ -20,7 +20,8 @@ import scipy.sparse as sp
 
 from jaxhumanoid.ocp import transcription as tr
 from jaxhumanoid.solvers.ipopt import solve_ipopt
-from jaxhumanoid.strategy import solve as strat
+from jaxhumanoid.strategy.handover import STAGE2_DEFAULTS, interpolate_full
+from jaxhumanoid.strategy.stage_one import STAGE1_DEFAULTS
 from jaxhumanoid.studies.bench import stage1_problem
 
 
@@ -32,12 +33,12 @@ def make_data(path: str) -> dict[str, np.ndarray]:
         return {k: z[k] for k in z.files}
     first, prob = stage1_problem("T1")
     nlp, b = prob.nlp, prob.bounds
-    r1 = solve_ipopt(first.nlp, first.p, first.bounds, options=strat.STAGE1_DEFAULTS)
-    Zf = strat.interpolate_full(first.full(r1.x), float(prob.p.T), prob.layout)
+    r1 = solve_ipopt(first.nlp, first.p, first.bounds, options=STAGE1_DEFAULTS)
+    Zf = interpolate_full(first.full(r1.x), float(prob.p.T), prob.layout)
     x0 = np.clip(np.asarray(tr.free_from_full(prob.layout, Zf)), b.xl, b.xu)
     out: dict[str, np.ndarray] = {}
     for label, iters in (("it3", 3), ("it30", 30), ("final", 3000)):
-        r = solve_ipopt(nlp, prob.p, b, x0=x0, options={**strat.STAGE2_DEFAULTS, "max_iter": iters})
+        r = solve_ipopt(nlp, prob.p, b, x0=x0, options={**STAGE2_DEFAULTS, "max_iter": iters})
         x, lam = np.asarray(r.x), np.asarray(r.lam_g)
         hv = np.asarray(nlp.hess_values(jnp.asarray(x), jnp.asarray(lam), 1.0, prob.p))
         jv = np.asarray(nlp.jac_values(jnp.asarray(x), prob.p))

@@ -26,6 +26,7 @@ from jaxhumanoid.ocp.tasks import Task, get_task, with_force_limit
 from jaxhumanoid.runtime import enable_compilation_cache
 from jaxhumanoid.strategy.posture import find_equilibrium
 from jaxhumanoid.strategy.problem import Problem, problem_from_settings
+from jaxhumanoid.strategy.settings import SolveSettings
 from jaxhumanoid.strategy.solve import solve
 from jaxhumanoid.strategy.taskfile import load_task_file
 from jaxhumanoid.studies.spec import Case, draw_rng
@@ -45,13 +46,12 @@ def base_problem(case: Case) -> dict[str, Any]:
         kwargs = load_task_file(case.task_path).as_solve_kwargs()
     for key in ("scheme", "solver"):
         kwargs.pop(key, None)
-    for key in ("N", "T", "N1"):
+    for key in ("N", "T"):
         value = getattr(case, key)
         kwargs[key] = value if value is not None else kwargs.get(key, SOLVE_DEFAULTS.get(key))
     kwargs["options"] = {**(kwargs.get("options") or {}), **dict(case.options)} or None
-    for key in ("scaling", "guess"):
-        if getattr(case, key) is not None:
-            kwargs[key] = getattr(case, key)
+    changes = {k: getattr(case, k) for k in ("N1", "scaling", "guess") if getattr(case, k) is not None}
+    kwargs["settings"] = (kwargs.get("settings") or SolveSettings()).replace(**changes)
     if case.contact_force_limit is not None:
         kwargs["task"] = with_force_limit(kwargs["task"], case.contact_force_limit)
     return kwargs

@@ -59,7 +59,7 @@ from jaxhumanoid.ocp.scheme import parse_scheme
 from jaxhumanoid.ocp.tasks import NO_FORCE_LIMIT, TASKS, get_task
 from jaxhumanoid.runtime import read_toml
 from jaxhumanoid.strategy.problem import GUESSES
-from jaxhumanoid.strategy.solve import SOLVERS
+from jaxhumanoid.strategy.settings import SOLVERS
 from jaxhumanoid.strategy.taskfile import load_task_file
 
 KINDS = ("solve", "inverse")
@@ -205,15 +205,15 @@ def _check_keys(where: str, table: Mapping, allowed: set[str]) -> None:
 
 
 def _task(field: str, key: str, base: pathlib.Path) -> tuple[str, str | None, int, dict]:
-    """(key as written, task file path or None, number of links, the file's [solve] settings),
-    the file loaded and checked."""
+    """(key as written, task file path or None, number of links, the file's [solve] scheme,
+    solver, N and T as given), the file loaded and checked."""
     if key.upper() in TASKS or key in {t.name for t in TASKS.values()}:
         return key, None, get_task(key).n, {}
     path = (base / key).resolve()
     if not path.is_file():
         raise ValueError(f"{field}: {key!r} is neither a task in {tuple(TASKS)} nor a task file (looked for {path})")
     tf = load_task_file(path)
-    return key, str(path), tf.model.n, tf.settings
+    return key, str(path), tf.model.n, tf.keywords
 
 
 def _distribution(field: str, value) -> tuple[str, list]:

@@ -1,0 +1,189 @@
+"""Stage 1 of 2S (Sec. III-A.3): the pseudo-static problem (8) on the coarse grid N1 under the
+relaxed contact law, and the fallbacks that rerun it when a run fails."""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+import warnings
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from jaxhumanoid.model.params import ContactParams
+from jaxhumanoid.ocp.tasks import NO_FORCE_LIMIT, Task, with_force_limit
+from jaxhumanoid.strategy.handover import with_law
+from jaxhumanoid.strategy.problem import GUESSES, Problem, build_problem, with_guess
+from jaxhumanoid.strategy.runner import ADAPTIVE, Runner, stage_stats
+from jaxhumanoid.strategy.settings import SolveSettings
+from jaxhumanoid.strategy.solution import StageStats
+
+# The barrier of stage 1 (docs/modelling.md; scripts/study_warm_start.py): mu_init = 1e-2 succeeds
+# in one more first run of 40 perturbed problems than IPOPT's 0.1, in fewer iterations at the
+# median.
+STAGE1_DEFAULTS = {"mu_init": 1e-2}
+# Stage 1 poses the body with twice its torque box (the cost keeps the task's weights; the
+# dynamic stages keep the body's box): a quasi-static motion, without inertia to carry the body
+# through, needs more torque than a dynamic one (getting up prone quasi-statically takes about 1.7
+# times an adult's strength), and within the body's own box stage 1 of the built-in T1 ends
+# infeasible. Twice the box: 12 of 12 perturbed problems solve and the whole 2S takes 414
+# iterations at the median, against 11 of 12 and 470 (docs/results.md).
+STAGE1_STRENGTH = 2.0
+# Stage 1 can still end "infeasible" from its initial guess: its landscape is chaotic, and starts
+# 1e-4 apart end in different optima or fail. Each failed run is followed by the next fallback, in
+# order, by every solver. The two guesses fail on different problems, so every fallback is tried
+# from both. The final problem's bounds can make stage 1 infeasible from every start (perturbed T3
+# under its contact-force limit), so the last fallbacks relax stage 1's bounds, first without the
+# task's contact-force limit, then with twice stage 1's torque box too; the dynamic stages keep the
+# task's bounds and bring the motion back within them. The iterations and times of every run add
+# up.
+STAGE1_RESTART_SIGMA = 1e-4
+STAGE1_NAME = "stage 1 (pseudo-static)"
+
+
+@dataclasses.dataclass(frozen=True)
+class Fallback:
+    """One more run of a failed stage 1: solver ``options`` on top of the stage's; from the other
+    guess of ``GUESSES`` when ``other_guess``; with ``seed``, every entry of the guess moved by
+    ``STAGE1_RESTART_SIGMA`` times a standard normal draw of that fixed seed; without the task's
+    contact-force limit when ``lift_force_limit`` (skipped for a task that has none, unless the
+    strength changes too); with stage 1's torque box ``STAGE1_STRENGTH`` u_max scaled by
+    ``strength``."""
+
+    options: dict
+    seed: int | None = None
+    other_guess: bool = False
+    lift_force_limit: bool = False
+    strength: float = 1.0
+
+    def lifts_limit(self, task: Task) -> bool:
+        """Whether the run drops a contact-force limit that ``task`` has."""
+        return self.lift_force_limit and task.contact_force_limit is not None
+
+    def relaxations(self, task: Task) -> tuple[str, ...]:
+        """How the run relaxes ``task``'s bounds, in words (empty when it does not)."""
+        return ((f"stage 1's torque box x{self.strength:g}",) if self.strength != 1.0 else ()) + (
+            ("no contact-force limit",) if self.lifts_limit(task) else ()
+        )
+
+
+STAGE1_FALLBACKS: tuple[Fallback, ...] = (
+    Fallback({}, None, True),
+    Fallback(ADAPTIVE, None, False),
+    Fallback(ADAPTIVE, None, True),
+    Fallback({}, 1, False),
+    Fallback({}, 1, True),
+    Fallback(ADAPTIVE, 1, False),
+    Fallback(ADAPTIVE, 1, True),
+    Fallback({}, None, False, lift_force_limit=True),
+    Fallback({}, None, True, lift_force_limit=True),
+    Fallback({}, None, False, lift_force_limit=True, strength=2.0),
+    Fallback({}, None, True, lift_force_limit=True, strength=2.0),
+)
+
+
+def stage_one_options(options: Mapping[str, Any] | None, settings: SolveSettings) -> dict:
+    """The solver options of stage 1: ``STAGE1_DEFAULTS``, then ``solve``'s ``options``, then
+    ``settings.stage1_options``."""
+    return {**STAGE1_DEFAULTS, **(options or {}), **(settings.stage1_options or {})}
+
+
+def restart_point(problem: Problem, seed: int | None) -> np.ndarray:
+    """The problem's initial guess (n,), or with ``seed`` every entry moved by
+    ``STAGE1_RESTART_SIGMA`` times a standard normal draw of that seed (clipped to the bounds)."""
+    b = problem.bounds
+    if seed is None:
+        return b.x0
+    noise = np.random.default_rng(seed).standard_normal(b.x0.size)
+    return np.clip(b.x0 + STAGE1_RESTART_SIGMA * noise, b.xl, b.xu)
+
+
+def stage_one_problem(
+    task,
+    scheme,
+    final: Problem,
+    N1: int,
+    contact_stage1=None,
+    guess: str = "linear",
+    strength: float = STAGE1_STRENGTH,
+) -> Problem:
+    """Stage 1 of 2S for the final problem ``final``: the pseudo-static problem (8) on N1 intervals
+    under ``contact_stage1`` (default ``ContactParams.relaxed()``), from the start posture re-seated
+    for that law (``with_law``; none when ``final`` is already posed under it, as
+    ``relaxed_stage_problem`` poses it), with the final problem's horizon, weights, body and foot,
+    and initial ``guess``; ``strength`` scales the body's torque box u_max (the cost keeps the
+    task's weights)."""
+    law = ContactParams.relaxed() if contact_stage1 is None else contact_stage1
+    q_start1 = with_law(final, law).p.q_start  # ``final`` itself when it is posed under ``law``
+    body = final.model
+    if strength != 1.0:
+        body = dataclasses.replace(body, u_max=strength * np.asarray(body.u_max))
+    return build_problem(
+        task,
+        scheme,
+        N=N1,
+        T=float(final.p.T),
+        pseudo_static=True,
+        contact=law,
+        q_start=q_start1,
+        weights=np.asarray(final.p.weights),
+        model=body,
+        foot=final.p.foot,
+        guess=guess,
+        foot_margin=final.p.foot_margin,
+    )
+
+
+def stage_one(
+    relaxed: Problem, settings: SolveSettings, options: Mapping[str, Any] | None, runner: Runner
+) -> tuple[StageStats, np.ndarray]:
+    """Stage 1 of 2S for ``relaxed``, the final problem as the relaxed-law stages pose it
+    (``handover.relaxed_stage_problem``): ``stage_one_problem`` on ``settings.N1`` intervals under
+    ``relaxed``'s law from ``settings.guess``, run by ``runner`` with ``stage_one_options``, then
+    ``STAGE1_FALLBACKS`` in turn while a run fails. A success that needed relaxed bounds is
+    announced by a warning. Returns (stats of every run, Z1 (N1 + 1, s) of the last)."""
+    task, scheme, guess = relaxed.task, relaxed.scheme, settings.guess
+    N1, law = settings.stage1_grid(relaxed.layout.N), relaxed.p.contact
+    opts = stage_one_options(options, settings)
+    t0 = time.perf_counter()
+    first = stage_one_problem(task, scheme, relaxed, N1, law, guess)
+    setup_first = time.perf_counter() - t0
+    starts = {(False, 1.0, False): first}  # (lift_force_limit, strength, other_guess) -> the problem a run starts
+
+    def start(lift: bool, strength: float, other: bool) -> Problem:
+        if (lift, strength, other) not in starts:
+            if other:
+                base = start(lift, strength, False)
+                starts[lift, strength, other] = with_guess(base, next(g for g in GUESSES if g != guess))
+            else:
+                posed = with_force_limit(task, NO_FORCE_LIMIT) if lift else task
+                problem = stage_one_problem(posed, scheme, relaxed, N1, law, guess, STAGE1_STRENGTH * strength)
+                starts[lift, strength, other] = problem
+        return starts[lift, strength, other]
+
+    attempts = [runner.run(first, first.bounds.x0, opts, STAGE1_NAME)]
+    last = Fallback({})  # the run that produced attempts[-1]: the first, which relaxes nothing
+    for fb in STAGE1_FALLBACKS:
+        if attempts[-1].success:
+            break
+        relaxations = fb.relaxations(task)
+        if fb.lift_force_limit and not relaxations:
+            continue  # the task has no limit: the same problem as an earlier run
+        problem = start(fb.lift_force_limit, fb.strength, False)
+        label = f"{STAGE1_NAME}, attempt {len(attempts) + 1}" + (
+            " with " + ", ".join(relaxations) if relaxations else ""
+        )
+        x0 = restart_point(start(fb.lift_force_limit, fb.strength, fb.other_guess), fb.seed)
+        attempts.append(runner.run(problem, x0, {**opts, **fb.options}, label))
+        last = fb
+    stats = stage_stats(STAGE1_NAME, first, attempts, setup_first, first.bounds.x0)
+    relaxations = last.relaxations(task)
+    if attempts[-1].success and relaxations:
+        stats = dataclasses.replace(stats, force_limit_lifted=last.lifts_limit(task), strength_factor=last.strength)
+        warnings.warn(
+            f"task {task.key}: stage 1 failed under its bounds and was solved with "
+            f"{', '.join(relaxations)}; the dynamic stages keep the task's bounds",
+            stacklevel=3,
+        )
+    return stats, first.full(attempts[-1].x)
