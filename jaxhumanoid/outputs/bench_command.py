@@ -63,7 +63,12 @@ def add_bench_parser(sub) -> None:
         "--reference-dir", default=DEFAULT_REFERENCE_DIR, help="the reference posing's T*.toml and README.md"
     )
     p.add_argument("--spec", default="examples/studies/robustness.toml", help="robustness suite: the study spec")
-    p.add_argument("--draws", type=int, default=None, help="robustness suite: the first K draws per task")
+    p.add_argument(
+        "--draws",
+        type=int,
+        default=None,
+        help="robustness: the first K draws per task; reference-draws: K draws per file (default 6)",
+    )
     p.add_argument("--workers", type=int, default=1, help="robustness suite: worker processes")
     p.add_argument("--out", default="bench", help="folder of the records (default bench/)")
     p.add_argument("--quiet", action="store_true", help="no progress lines")

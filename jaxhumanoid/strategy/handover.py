@@ -34,9 +34,9 @@ from jaxhumanoid.strategy.runner import ADAPTIVE, Runner, stage_stats
 from jaxhumanoid.strategy.settings import SolveSettings
 from jaxhumanoid.strategy.solution import StageStats
 
-# The barrier of the dynamic stages from stage 1's primal warm start (docs/modelling.md;
-# scripts/study_warm_start.py): a small initial barrier and a small bound push keep the warm start
-# instead of pushing every variable back to the middle of its bounds.
+# The barrier of the dynamic stages from stage 1's primal warm start (docs/decisions.md): a small
+# initial barrier and a small bound push keep the warm start instead of pushing every variable
+# back to the middle of its bounds.
 STAGE2_DEFAULTS = {"mu_init": 1e-3, "bound_push": 1e-6, "bound_frac": 1e-6}
 # Later laws of the continuation start next to their optimum: a small barrier keeps them there.
 CONTINUATION_OPTIONS = {"mu_init": 1e-5}

@@ -19,7 +19,7 @@ from jaxhumanoid.strategy.runner import ADAPTIVE, Runner, stage_stats
 from jaxhumanoid.strategy.settings import SolveSettings
 from jaxhumanoid.strategy.solution import StageStats
 
-# The barrier of stage 1 (docs/modelling.md; scripts/study_warm_start.py): mu_init = 1e-2 succeeds
+# The barrier of stage 1 (docs/decisions.md): mu_init = 1e-2 succeeds
 # in one more first run of 40 perturbed problems than IPOPT's 0.1, in fewer iterations at the
 # median.
 STAGE1_DEFAULTS = {"mu_init": 1e-2}

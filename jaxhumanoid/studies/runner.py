@@ -38,7 +38,8 @@ class BenchSettings:
     """What a run of ``jaxhumanoid bench`` is asked for; each suite reads the fields it needs.
 
     ``N``: the grid of every solve (None: each suite's own, the tasks' N = 100); ``draws``: the
-    robustness study's first K draws per task (None: all); ``work_dir``: where suites that write
+    robustness study's first K draws per task (None: all), the reference-draws suite's draws per
+    file (None: its default); ``work_dir``: where suites that write
     files (a sweep, an external script's record) put them."""
 
     repeats: int = 3

@@ -2,6 +2,8 @@
 
 - ``reference``: each ``T*.toml`` of the reference-posing folder solved by each backend, beside
   that folder's README figures (an independent implementation's iterations, times and optima);
+- ``reference-draws``: the same files over perturbed cost weights, per backend: draws solved,
+  draws at the best optimum found, and the distribution of the iterations;
 - ``table2``: A,F+C,2S against A,F+C,1S on the tasks, with IPOPT and the IPM, and 2S's time
   over 1S's;
 - ``agreement``: A,F+C,2S by every backend from the one stage-1 point (stage 1 runs on IPOPT
@@ -155,6 +157,104 @@ def reference_table(rec: Mapping[str, Any]) -> str:
         lines.append(
             f"| {task} | {backend} | {_status(c)} | {_its(c)} | {fmt_time(c['times']['solve_s'])} | "
             f"{c['objective']:.6g} | {fmt_time(c['times']['last_stage_ms_per_iteration'], 1)} | {ref_cells} |"
+        )
+    return "\n".join(lines)
+
+
+# ------------------------------------------------------------------------- reference draws
+# The reference-posing problems are chaotic: a rounding-level change moves their iterations and
+# optima. Draw 0 is each file as posed; draw d >= 1 multiplies each cost weight of (7) by
+# 1 + REFERENCE_DRAW_SIGMA * z, z standard normal of seed d (the same draws for every backend).
+REFERENCE_DRAW_SIGMA = 0.01
+DEFAULT_REFERENCE_DRAWS = 6
+# An optimum within this relative distance of the best one found for a draw counts as reached.
+SAME_OPTIMUM_RTOL = 5e-3
+
+
+def reference_draw_weights(kwargs: Mapping[str, Any], draw: int) -> np.ndarray | None:
+    """The cost weights of ``draw`` for a task file's ``solve`` keywords (None for draw 0: the
+    file's own)."""
+    if draw == 0:
+        return None
+    task = kwargs["task"]
+    w = task.weights.as_array(kwargs["model"].n if kwargs.get("model") is not None else task.n)
+    return w * (1.0 + REFERENCE_DRAW_SIGMA * np.random.default_rng(draw).standard_normal(w.shape))
+
+
+def _reference_draws_run(path: pathlib.Path, backend: str, settings: BenchSettings) -> Measurement:
+    kwargs = {**solve_kwargs(str(path)), "solver": backend, **_grid(settings)}
+    runs, total = [], 0.0
+    for d in range(settings.draws or DEFAULT_REFERENCE_DRAWS):
+        m, _ = measured_solve({**kwargs, "weights": reference_draw_weights(kwargs, d)})
+        runs.append({k: m.values[k] for k in ("status", "success", "iterations", "objective")})
+        total += m.times["solve_s"]
+    return Measurement({"draws": runs}, {"solve_s": total})
+
+
+def reference_draws_cases(settings: BenchSettings) -> list[Case]:
+    def case(f: pathlib.Path, b: str) -> Case:
+        return Case(f"{f.stem} {b}", lambda: _reference_draws_run(f, b, settings))
+
+    return [case(f, b) for f in _reference_files(settings) for b in settings.backends]
+
+
+def reference_draws_summary(cases: list[dict[str, Any]], settings: BenchSettings) -> dict[str, Any]:
+    """Per task file and backend: draws solved, draws at the best optimum any backend found for
+    the draw (within ``SAME_OPTIMUM_RTOL``), median and largest total iterations; and the
+    independent implementation's figures for draw 0."""
+    readme = pathlib.Path(settings.reference_dir) / "README.md"
+    figures = reference_figures(readme.read_text()) if readme.is_file() else {}
+    best: dict[tuple[str, int], float] = {}
+    for c in cases:
+        task = c["case"].split()[0]
+        for d, r in enumerate(c["draws"]):
+            if r["success"]:
+                best[task, d] = min(best.get((task, d), np.inf), r["objective"])
+    out = {}
+    for c in cases:
+        task = c["case"].split()[0]
+        draws = c["draws"]
+        totals = [sum(r["iterations"]) for r in draws]
+        at_best = [
+            bool(r["success"] and r["objective"] <= best[task, d] + SAME_OPTIMUM_RTOL * abs(best[task, d]))
+            for d, r in enumerate(draws)
+        ]
+        ref = figures.get(task)
+        out[c["case"]] = {
+            "draws": len(draws),
+            "solved": sum(bool(r["success"]) for r in draws),
+            "at_best": sum(at_best),
+            "median_iterations": float(np.median(totals)),
+            "max_iterations": int(max(totals)),
+            "draw0_iterations": totals[0],
+            "draw0_objective": draws[0]["objective"],
+            "reference_iterations": sum(ref["iterations"]) if ref else None,
+            "reference_objective": ref["objective"] if ref else None,
+        }
+    return {"sigma": REFERENCE_DRAW_SIGMA, "rtol": SAME_OPTIMUM_RTOL, "per_case": out}
+
+
+def reference_draws_table(rec: Mapping[str, Any]) -> str:
+    s = rec["summary"]
+    lines = [
+        f"Draw 0 as posed; draws 1.. with each weight times 1 + {s['sigma']:g} z. At the best optimum: "
+        f"within {s['rtol']:g} of the lowest objective any backend reached on the draw.",
+        "",
+        "| task | backend | solved | at the best optimum | total iterations: median (max) "
+        "| draw 0: iterations, objective | reference: iterations, objective |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for key, r in s["per_case"].items():
+        task, backend = key.split()
+        ref = (
+            f"{r['reference_iterations']}, {r['reference_objective']:.6g}"
+            if r["reference_iterations"] is not None
+            else "-"
+        )
+        lines.append(
+            f"| {task} | {backend} | {r['solved']} of {r['draws']} | {r['at_best']} of {r['draws']} "
+            f"| {r['median_iterations']:g} ({r['max_iterations']}) | {r['draw0_iterations']}, "
+            f"{r['draw0_objective']:.6g} | {ref} |"
         )
     return "\n".join(lines)
 
@@ -338,6 +438,13 @@ SUITES: dict[str, Suite] = {
         reference_table,
         reference_summary,
         about="Each reference-posing task file (its scheme, grid, options and stage-1 solver) on each backend.",
+    ),
+    "reference-draws": Suite(
+        reference_draws_cases,
+        reference_draws_table,
+        reference_draws_summary,
+        repeat=False,
+        about="Each reference-posing task file on each backend over perturbed weights (``--draws``, default 6).",
     ),
     "table2": Suite(table2_cases, table2_table, table2_summary, about="A,F+C,2S against A,F+C,1S, N = 100, T = 5 s."),
     "agreement": Suite(
