@@ -226,13 +226,13 @@ def cmd_table2(args) -> int:
     for task, scheme in cells:
         check_settings({**given[task], "scheme": scheme, "solver": args.solver, "N": args.N})
     with working():
-        _table2_cells(args, out, given, cells, options, progress)
+        _table2_cells(args, out=out, given=given, cells=cells, options=options, progress=progress)
     if not args.quiet:
         print(_table2_markdown(json.loads((out / "table2.json").read_text())))
     return 0
 
 
-def _table2_cells(args, out: pathlib.Path, given: dict, cells: list, options: dict, progress: Progress) -> None:
+def _table2_cells(args, *, out: pathlib.Path, given: dict, cells: list, options: dict, progress: Progress) -> None:
     """Solve every cell, table2.json rewritten after each (a failure keeps the cells before it)."""
     records: list[dict] = []
     for task, scheme in progress.iter(cells, label=lambda c: f"{c[0]} {c[1]}"):
@@ -321,7 +321,7 @@ def cmd_track(args) -> int:
     safety = SafetyFilter() if args.controller == "qp" else None
     progress = Progress(4 + (safety is not None) + (0 if args.no_figures else 1), quiet=args.quiet)
     with working():
-        res = _track(args, sol, out, perturbation, weights, safety, progress)
+        res = _track(args, sol, out=out, perturbation=perturbation, weights=weights, safety=safety, progress=progress)
     if not args.quiet:
         print(
             f"{res.task}: {res.trials} trials, success open loop {res.open_loop_success_rate:.0%}, "
@@ -332,7 +332,7 @@ def cmd_track(args) -> int:
     return 0
 
 
-def _track(args, sol, out: pathlib.Path, perturbation, weights, safety, progress: Progress):
+def _track(args, sol, *, out: pathlib.Path, perturbation, weights, safety, progress: Progress):
     """The Monte-Carlo trials of ``track``, saved, and their figures."""
     res = montecarlo.track(
         sol,
