@@ -74,13 +74,13 @@ def initial_state(ctx: Context, P: Prob, x, raw: Evals) -> State:
     s = jnp.where(P.eq, P.gl, jnp.where(P.free, g, s))
     bm = o.bound_mult_init_val
     it = Iterate(
-        x,
-        s,
-        jnp.zeros(m),
-        jnp.where(P.hxl, bm, 0.0),
-        jnp.where(P.hxu, bm, 0.0),
-        jnp.where(P.hsl, bm, 0.0),
-        jnp.where(P.hsu, bm, 0.0),
+        x=x,
+        s=s,
+        y=jnp.zeros(m),
+        zl=jnp.where(P.hxl, bm, 0.0),
+        zu=jnp.where(P.hxu, bm, 0.0),
+        vl=jnp.where(P.hsl, bm, 0.0),
+        vu=jnp.where(P.hsu, bm, 0.0),
     )
     it = it._replace(y=ls_multipliers(ctx, P, it, ev))
     theta0 = theta_of(P, g, s)
@@ -105,7 +105,17 @@ def initial_state(ctx: Context, P: Prob, x, raw: Evals) -> State:
         hist=hist,
         terms=empty_terms(n),
         rs=inactive_resto(n, m, o.filter_size),
-        wd=Watchdog(jnp.zeros((), jnp.int32), z0 > 0, jnp.zeros((), jnp.int32), it, ev, z0, z0, z0, z0 > 0),
+        wd=Watchdog(
+            shortened=jnp.zeros((), jnp.int32),
+            on=z0 > 0,
+            trials=jnp.zeros((), jnp.int32),
+            it=it,
+            ev=ev,
+            theta=z0,
+            phi=z0,
+            gd=z0,
+            skip_first=z0 > 0,
+        ),
         cur_acc=jnp.zeros((), bool),
         acc_it=it,
         acc_ev=ev,
@@ -217,7 +227,8 @@ def take_step(ctx: Context, P: Prob, S: State, ls: LineSearch, mu, tau):
     S_acc = lax.cond(
         ls.ftype, lambda s_: s_, lambda s_: s_._replace(gl=filter_add(o, s_.gl, ls.ref.theta, ls.ref.phi)), S
     )
-    return S_acc._replace(it=Iterate(x_n, s_n, y_n, zl, zu, vl, vu), rs=R_acc), a_du
+    it_n = Iterate(x=x_n, s=s_n, y=y_n, zl=zl, zu=zu, vl=vl, vu=vu)
+    return S_acc._replace(it=it_n, rs=R_acc), a_du
 
 
 def step_kind(ls: LineSearch, start_resto):
@@ -288,7 +299,7 @@ def transition(ctx: Context, P: Prob, S: State, S_acc: State, ls: LineSearch, mu
     f_next = jnp.where(ls.accepted, ls.f, S.ev.f)
     g_next = jnp.where(ls.accepted, ls.g, S.ev.g)
     grad_n, jac_n = derivs(ctx, P, S_next.it.x)
-    ev_next = Evals(f_next, g_next, grad_n, jac_n)
+    ev_next = Evals(f=f_next, g=g_next, grad=grad_n, jac=jac_n)
     # a failed restoration falls back to the last acceptable iterate; a failed watchdog to the
     # point where it started
     rollback = resto_failed & S.has_acc

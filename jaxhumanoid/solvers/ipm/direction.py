@@ -75,7 +75,22 @@ def residuals(ctx: Context, P: Prob, S: State, mu):
 def newton(ic: Inertia, d: Direction, res_ratio, res) -> Newton:
     """The Newton tuple of direction ``d`` solved with ``ic`` for the residuals ``res``."""
     finite_step = jnp.all(jnp.isfinite(d.dx)) & jnp.all(jnp.isfinite(d.dy))
-    return Newton(ic, ic.ok & finite_step, d, res_ratio, *res)
+    gx, gs, gp, gn, rx, rs, rp, rn, c = res
+    return Newton(
+        ic=ic,
+        ok=ic.ok & finite_step,
+        d=d,
+        res_ratio=res_ratio,
+        gx=gx,
+        gs=gs,
+        gp=gp,
+        gn=gn,
+        rx=rx,
+        rs=rs,
+        rp=rp,
+        rn=rn,
+        c=c,
+    )
 
 
 def newton_step(ctx: Context, P: Prob, S: State, ic: Inertia, mu) -> Newton:
@@ -83,7 +98,7 @@ def newton_step(ctx: Context, P: Prob, S: State, ic: Inertia, mu) -> Newton:
     res = residuals(ctx, P, S, mu)
     _, _, _, _, rx, rs, rp, rn, c = res
     dx, ds, dy, dp, dn, res_ratio = solve_reduced(ctx, P, ic.A, ic.B, ic.fac, ic.invs, rx, rs, rp, rn, c)
-    return newton(ic, Direction(dx, ds, dy, dp, dn), res_ratio, res)
+    return newton(ic, Direction(dx=dx, ds=ds, dy=dy, dp=dp, dn=dn), res_ratio, res)
 
 
 def search_direction(ctx: Context, P: Prob, S: State, mu) -> Newton:
@@ -94,7 +109,8 @@ def search_direction(ctx: Context, P: Prob, S: State, mu) -> Newton:
 def corrected_direction(ctx: Context, P: Prob, nw: Newton, c_soc) -> Direction:
     """The second-order correction (Sec. 2.4): (13) with the same matrix and c replaced by c_soc."""
     ic = nw.ic
-    return Direction(*solve_reduced(ctx, P, ic.A, ic.B, ic.fac, ic.invs, nw.rx, nw.rs, nw.rp, nw.rn, c_soc)[:5])
+    dx, ds, dy, dp, dn, _ = solve_reduced(ctx, P, ic.A, ic.B, ic.fac, ic.invs, nw.rx, nw.rs, nw.rp, nw.rn, c_soc)
+    return Direction(dx=dx, ds=ds, dy=dy, dp=dp, dn=dn)
 
 
 def directional_derivative(nw: Newton):

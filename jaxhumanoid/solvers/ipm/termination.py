@@ -97,7 +97,7 @@ def error_terms(ctx: Context, P: Prob, it: Iterate, ev: Evals, R: Resto) -> Erro
 def empty_terms(n: int) -> ErrorTerms:
     """Placeholder ``ErrorTerms`` (the shapes of a state before its first ``check``)."""
     z = jnp.zeros(())
-    return ErrorTerms(jnp.zeros(n), z, z, z, z, z, z, z, z)
+    return ErrorTerms(jt=jnp.zeros(n), dual_s=z, primal=z, sd=z, sc=z, c_max=z, c_min=z, pr_s=z, pr_u=z)
 
 
 def complementarity(T: ErrorTerms, mu):
