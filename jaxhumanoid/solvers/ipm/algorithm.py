@@ -52,7 +52,7 @@ from jaxhumanoid.solvers.ipm.state import (
     inactive_resto,
     tree_where,
 )
-from jaxhumanoid.solvers.ipm.step import dual_steps, frac_dual, kappa_sigma_reset, ls_multipliers
+from jaxhumanoid.solvers.ipm.step import dual_ratios, dual_steps, kappa_sigma_reset, ls_multipliers, max_abs, smallest
 from jaxhumanoid.solvers.ipm.termination import check, empty_terms, errors_at, step_status
 from jaxhumanoid.solvers.status import Status
 
@@ -204,17 +204,13 @@ def take_step(ctx: Context, P: Prob, S: State, ls: LineSearch, mu, tau):
     a_pr = ls.a_pr
     dzl, dzu, dvl, dvu = dual_steps(P, it, D.dx, D.ds, mu)
     dzp, dzn = pn_dual_steps(R, rr, D.dp, D.dn, mu)
-    a_du = jnp.min(
-        jnp.stack(
-            [
-                frac_dual(it.zl, dzl, P.hxl, tau),
-                frac_dual(it.zu, dzu, P.hxu, tau),
-                frac_dual(it.vl, dvl, P.hsl, tau),
-                frac_dual(it.vu, dvu, P.hsu, tau),
-                frac_dual(R.zp, dzp, rr, tau),
-                frac_dual(R.zn, dzn, rr, tau),
-            ]
-        )
+    a_du = smallest(
+        dual_ratios(it.zl, dzl, P.hxl, tau),
+        dual_ratios(it.zu, dzu, P.hxu, tau),
+        dual_ratios(it.vl, dvl, P.hsl, tau),
+        dual_ratios(it.vu, dvu, P.hsu, tau),
+        dual_ratios(R.zp, dzp, rr, tau),
+        dual_ratios(R.zn, dzn, rr, tau),
     )
     x_n = it.x + a_pr * D.dx
     s_n = it.s + a_pr * D.ds
@@ -320,7 +316,7 @@ def iteration(ctx: Context, P: Prob, S: State):
     status = step_status(stop_acceptable, resto_failed, nw.ok)
     D = ls.d
     # ||d|| as IPOPT's log: the primal step (x, s and, in the restoration phase, p and n)
-    d_norm = jnp.max(jnp.stack([jnp.max(jnp.abs(v), initial=0.0) for v in (D.dx, D.ds, D.dp, D.dn)]))
+    d_norm = max_abs(D.dx, D.ds, D.dp, D.dn)
     resto_iters = S.resto_iters + resto.astype(jnp.int32)
     info = StepInfo(
         mu=mu,

@@ -19,7 +19,7 @@ from jaxhumanoid.solvers.ipm.inertia import Inertia, inertia_corrected_factor
 from jaxhumanoid.solvers.ipm.problem import Context, hessian, jt_mult
 from jaxhumanoid.solvers.ipm.restoration import objective_grad, pn_barrier_grad, prox_weight, resto_resid
 from jaxhumanoid.solvers.ipm.state import Direction, Prob, State
-from jaxhumanoid.solvers.ipm.step import sigmas, solve_reduced
+from jaxhumanoid.solvers.ipm.step import flat, sigmas, solve_reduced
 
 
 class Newton(NamedTuple):
@@ -74,7 +74,7 @@ def residuals(ctx: Context, P: Prob, S: State, mu):
 
 def newton(ic: Inertia, d: Direction, res_ratio, res) -> Newton:
     """The Newton tuple of direction ``d`` solved with ``ic`` for the residuals ``res``."""
-    finite_step = jnp.all(jnp.isfinite(d.dx)) & jnp.all(jnp.isfinite(d.dy))
+    finite_step = jnp.all(jnp.isfinite(flat([d.dx, d.dy])))
     gx, gs, gp, gn, rx, rs, rp, rn, c = res
     return Newton(
         ic=ic,

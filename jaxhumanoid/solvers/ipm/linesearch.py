@@ -25,7 +25,7 @@ from jaxhumanoid.solvers.ipm.options import IPMOptions
 from jaxhumanoid.solvers.ipm.problem import Context, evaluate
 from jaxhumanoid.solvers.ipm.restoration import merit, resto_resid
 from jaxhumanoid.solvers.ipm.state import Direction, Globalization, Iterate, Prob, Resto, State, Watchdog, tree_where
-from jaxhumanoid.solvers.ipm.step import frac_dual, frac_to_boundary
+from jaxhumanoid.solvers.ipm.step import boundary_ratios, dual_ratios, max_abs, smallest
 
 EPS = float(np.finfo(np.float64).eps)
 
@@ -152,16 +152,14 @@ def trial_at(ctx: Context, P: Prob, it: Iterate, R: Resto, mu, a, d: Direction) 
 
 def step_max(P: Prob, it: Iterate, R: Resto, rr, tau, d: Direction):
     """Fraction to the boundary (15) for x, s and, in the restoration phase, p, n."""
-    return jnp.minimum(
-        frac_to_boundary(P, it.x, it.s, d.dx, d.ds, tau),
-        jnp.minimum(frac_dual(R.p, d.dp, rr, tau), frac_dual(R.n, d.dn, rr, tau)),
-    )
+    pn = dual_ratios(R.p, d.dp, rr, tau), dual_ratios(R.n, d.dn, rr, tau)
+    return smallest(*boundary_ratios(P, it.x, it.s, d.dx, d.ds, tau), *pn)
 
 
 def tiny_step(it: Iterate, d: Direction, ok_step, resto):
     """The step is below 10 eps relative to the iterate (IPOPT's tiny step)."""
-    tiny = jnp.max(jnp.abs(d.dx) / (1.0 + jnp.abs(it.x)), initial=0.0) < 10 * EPS
-    return tiny & (jnp.max(jnp.abs(d.ds) / (1.0 + jnp.abs(it.s)), initial=0.0) < 10 * EPS) & ok_step & ~resto
+    rel = max_abs(d.dx / (1.0 + jnp.abs(it.x)), d.ds / (1.0 + jnp.abs(it.s)))
+    return (rel < 10 * EPS) & ok_step & ~resto
 
 
 def watchdog_start(o: IPMOptions, W: Watchdog, nupd, resto):

@@ -65,7 +65,7 @@ from jaxhumanoid.solvers.ipm.inertia import Inertia
 from jaxhumanoid.solvers.ipm.options import IPMOptions
 from jaxhumanoid.solvers.ipm.problem import Context, jt_mult, slacks, theta_of
 from jaxhumanoid.solvers.ipm.state import AdaptiveMu, Direction, Iterate, Prob, State, tree_where
-from jaxhumanoid.solvers.ipm.step import dual_steps, frac_dual, frac_to_boundary, solve_reduced
+from jaxhumanoid.solvers.ipm.step import dual_ratios, dual_steps, frac_to_boundary, smallest, solve_reduced
 from jaxhumanoid.solvers.ipm.termination import errors_at
 
 GOLDEN = (3.0 - math.sqrt(5.0)) / 2.0
@@ -162,7 +162,7 @@ def quality_function(P: Prob, it: Iterate, tau, aff: Direction, cen: Direction, 
     dzl, dzu, dvl, dvu = dual_steps(P, it, dx, ds, sigma * avg)
     a_pr = frac_to_boundary(P, it.x, it.s, dx, ds, tau)
     zs = ((it.zl, dzl, P.hxl), (it.zu, dzu, P.hxu), (it.vl, dvl, P.hsl), (it.vu, dvu, P.hsu))
-    a_du = jnp.min(jnp.stack([frac_dual(z, dz, m_, tau) for z, dz, m_ in zs]))
+    a_du = smallest(*(dual_ratios(z, dz, m_, tau) for z, dz, m_ in zs))
     dxl, dxu, dsl, dsu = slacks(P, it.x, it.s)
     new_slacks = (dxl + a_pr * dx, dxu - a_pr * dx, dsl + a_pr * ds, dsu - a_pr * ds)
     compl = sum(jnp.sum(jnp.where(m_, (sl * (z + a_du * dz)) ** 2, 0.0)) for sl, (z, dz, m_) in zip(new_slacks, zs))
