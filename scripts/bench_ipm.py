@@ -19,6 +19,11 @@ Problems: a built-in task key (``T1``..``T4``, as posed) or ``ref:T1`` .. for
 - ``compile``: ``jaxhumanoid solve --task T1 --solver ipm`` (each of ``--compile-tasks``) in a
   fresh process with an empty compilation cache, ``--compile-runs`` times: each stage's compile
   time from its report, the process's CPU and wall time.
+- ``programs``: the programs the IPM compiles for the final NLP of each of ``--compile-tasks``
+  (``N`` = 100, nothing solved): the four parts of the stepped core that the command line runs
+  (prepare, start, advance, finish) and the whole solve in one program (``solve_ipm`` without
+  a progress callback), each traced and compiled in this process: trace and lowering seconds,
+  XLA compile CPU seconds, lines of StableHLO, and the kernels (fusions) of the optimised HLO.
 - ``spread``: stage 1 of the benchmark tasks by IPOPT under options that change only the
   rounding of its linear solves, and by the IPM (the spread of IPOPT's own iteration counts).
 - ``batch``: a ``vmap`` batch of T1 stage-1 problems against the same problems one by one.
@@ -247,6 +252,64 @@ def compile_part(tasks: list[str], runs: int, ref_dir: pathlib.Path, baseline: s
     return out
 
 
+# ----------------------------------------------------------------------------- programs
+def program_sizes(name: str, fn, *args) -> dict:
+    """Trace + lower ``fn`` (a jitted function) at ``args`` and compile it: seconds (compile as
+    CPU time of this process: XLA's codegen threads included), StableHLO lines and fusions."""
+    t0 = time.perf_counter()
+    lowered = fn.lower(*args)
+    trace = time.perf_counter() - t0
+    c0, t0 = time.process_time(), time.perf_counter()
+    compiled = lowered.compile()
+    cpu, wall = time.process_time() - c0, time.perf_counter() - t0
+    hlo = compiled.as_text()
+    row = {
+        "program": name,
+        "trace_s": trace,
+        "compile_cpu_s": cpu,
+        "compile_wall_s": wall,
+        "stablehlo_lines": lowered.as_text().count("\n"),
+        "fusions": len(re.findall(r"^\s+%\S+ = .* fusion\(", hlo, re.M)),
+    }
+    print(
+        f"{name:10s} trace {trace:5.2f} s  compile CPU {cpu:6.2f} s (wall {wall:6.2f})"
+        f"  {row['stablehlo_lines']:6d} lines  {row['fusions']:5d} fusions"
+    )
+    return row
+
+
+def programs_part(tasks: list[str], ref_dir: pathlib.Path) -> dict:
+    """``program_sizes`` of the IPM's programs on each task's final NLP (stage 2's structure)."""
+    from jaxhumanoid.solvers.ipm import driver
+    from jaxhumanoid.solvers.ipm.options import as_float64, make_options
+    from jaxhumanoid.solvers.ipm.state import Evals
+    from jaxhumanoid.strategy.problem import build_problem
+
+    out = {}
+    for name in tasks:
+        kw = solve_kwargs_of(name, ref_dir)
+        task = kw.get("task", "T1")
+        final = build_problem(task, SCHEME, N=int(kw.get("N", 100)), guess="linear")
+        nlp, p, b = final.nlp, final.p, final.bounds
+        o = as_float64(make_options(dict(strat.STAGE2_DEFAULTS)))
+        data = [jnp.asarray(a, float) for a in (b.x0, b.xl, b.xu, b.gl, b.gu)]
+        core = driver._stepped_core(nlp)
+        fns = core["nlp"]
+        rows = [program_sizes("prepare", core["prepare"], *data, o)]
+        B = core["prepare"](*data, o)
+        at_x0 = fns.grad_jac(B.x0, p)
+        f, g = fns.fg(B.x, p)
+        grad, jac = fns.grad_jac(B.x, p)
+        raw = Evals(f=f, g=g, grad=grad, jac=jac)
+        rows.append(program_sizes("start", core["start"], B, p, at_x0, raw, o))
+        S, P = core["start"](B, p, at_x0, raw, o)
+        rows.append(program_sizes("advance", core["advance"], P, S, o, jnp.asarray(1, jnp.int32)))
+        rows.append(program_sizes("finish", core["finish"], P, S, o))
+        rows.append(program_sizes("one", driver._core(nlp, batched=False)["fn"], *data, p, o))
+        out[name] = rows
+    return out
+
+
 # ----------------------------------------------------------------------------- spread, batch
 ROUNDING_VARIANTS = ({}, {"mumps_scaling": 0}, {"mumps_pivtol": 1e-5}, {"mumps_permuting_scaling": 0})
 
@@ -301,7 +364,10 @@ def main():
         "--compile-baseline", help="the python of another environment (e.g. with the last release) to compare with"
     )
     ap.add_argument(
-        "--parts", nargs="+", default=["stage2", "compile"], choices=["stage2", "compile", "spread", "batch"]
+        "--parts",
+        nargs="+",
+        default=["stage2", "compile"],
+        choices=["stage2", "compile", "programs", "spread", "batch"],
     )
     ap.add_argument("--spread-tasks", nargs="+", default=["T1", "T2", "T3", "T4"])
     ap.add_argument("--batch", type=int, default=32)
@@ -311,6 +377,8 @@ def main():
     record: dict = {"git": git_state(), "environment": environment(), "argv": sys.argv[1:], "scheme": SCHEME}
     if "compile" in args.parts:  # first: fresh processes, before this one loads the machine
         record["compile"] = compile_part(args.compile_tasks, args.compile_runs, args.ref_dir, args.compile_baseline)
+    if "programs" in args.parts:  # before the persistent cache is on
+        record["programs"] = programs_part(args.compile_tasks, args.ref_dir)
     enable_compilation_cache()
     if "stage2" in args.parts:
         record["stage2"] = res = {}

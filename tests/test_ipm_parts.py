@@ -129,6 +129,22 @@ def test_fraction_to_the_boundary():
     ) == pytest.approx(tau * 0.5)
 
 
+def test_one_reduction_equals_the_reductions_of_each_vector():
+    """``step.smallest`` and ``step.max_abs`` (one reduction of the concatenation, fewer kernels in
+    the compiled loop) give the bits of a reduction per vector, NaN and infinities included."""
+    rng = np.random.default_rng(3)
+    vs = [jnp.asarray(rng.standard_normal(k) * 10.0 ** rng.integers(-8, 8, k)) for k in (7, 0, 40, 3)]
+    vs[2] = vs[2].at[5].set(jnp.inf)
+    ratios = [jnp.where(v < 0, -0.99 / jnp.where(v < 0, v, -1.0), 1.0) for v in vs]
+    old_min = jnp.min(jnp.stack([jnp.min(r, initial=1.0) for r in ratios]))
+    assert float(step.smallest(*ratios)) == float(old_min)
+    old_max = jnp.max(jnp.stack([jnp.max(jnp.abs(v), initial=0.0) for v in vs]))
+    assert float(step.max_abs(*vs)) == float(old_max)
+    with_nan = [vs[0], vs[1].at[:].set(0.0), vs[2].at[1].set(jnp.nan)]
+    assert math.isnan(float(step.max_abs(*with_nan)))
+    assert math.isnan(float(jnp.max(jnp.stack([jnp.max(jnp.abs(v), initial=0.0) for v in with_nan]))))
+
+
 def test_kappa_sigma_safeguard():
     mu, ks = 0.1, O.kappa_sigma
     mask = jnp.array([True, True, True, False])

@@ -207,12 +207,12 @@ def local_derivatives(
         return jnp.sum(vals[:, h_src_j] * h_coef_j, axis=-1)
 
     return LocalDerivatives(
-        jw_rows,
-        jw_cols,
-        hw_rows,
-        hw_cols,
-        jacobian,
-        hessian,
-        n_jac_colours,
-        n_hess_colours + colouring.num_colours(ccol),
+        jac_rows=jw_rows,
+        jac_cols=jw_cols,
+        hess_rows=hw_rows,
+        hess_cols=hw_cols,
+        jacobian=jacobian,
+        hessian=hessian,
+        n_jac_colours=n_jac_colours,
+        n_hess_colours=n_hess_colours + colouring.num_colours(ccol),
     )

@@ -52,7 +52,7 @@ from jaxhumanoid.solvers.ipm.state import (
     inactive_resto,
     tree_where,
 )
-from jaxhumanoid.solvers.ipm.step import dual_steps, frac_dual, kappa_sigma_reset, ls_multipliers
+from jaxhumanoid.solvers.ipm.step import dual_ratios, dual_steps, kappa_sigma_reset, ls_multipliers, max_abs, smallest
 from jaxhumanoid.solvers.ipm.termination import check, empty_terms, errors_at, step_status
 from jaxhumanoid.solvers.status import Status
 
@@ -74,13 +74,13 @@ def initial_state(ctx: Context, P: Prob, x, raw: Evals) -> State:
     s = jnp.where(P.eq, P.gl, jnp.where(P.free, g, s))
     bm = o.bound_mult_init_val
     it = Iterate(
-        x,
-        s,
-        jnp.zeros(m),
-        jnp.where(P.hxl, bm, 0.0),
-        jnp.where(P.hxu, bm, 0.0),
-        jnp.where(P.hsl, bm, 0.0),
-        jnp.where(P.hsu, bm, 0.0),
+        x=x,
+        s=s,
+        y=jnp.zeros(m),
+        zl=jnp.where(P.hxl, bm, 0.0),
+        zu=jnp.where(P.hxu, bm, 0.0),
+        vl=jnp.where(P.hsl, bm, 0.0),
+        vu=jnp.where(P.hsu, bm, 0.0),
     )
     it = it._replace(y=ls_multipliers(ctx, P, it, ev))
     theta0 = theta_of(P, g, s)
@@ -105,7 +105,17 @@ def initial_state(ctx: Context, P: Prob, x, raw: Evals) -> State:
         hist=hist,
         terms=empty_terms(n),
         rs=inactive_resto(n, m, o.filter_size),
-        wd=Watchdog(jnp.zeros((), jnp.int32), z0 > 0, jnp.zeros((), jnp.int32), it, ev, z0, z0, z0, z0 > 0),
+        wd=Watchdog(
+            shortened=jnp.zeros((), jnp.int32),
+            on=z0 > 0,
+            trials=jnp.zeros((), jnp.int32),
+            it=it,
+            ev=ev,
+            theta=z0,
+            phi=z0,
+            gd=z0,
+            skip_first=z0 > 0,
+        ),
         cur_acc=jnp.zeros((), bool),
         acc_it=it,
         acc_ev=ev,
@@ -194,17 +204,13 @@ def take_step(ctx: Context, P: Prob, S: State, ls: LineSearch, mu, tau):
     a_pr = ls.a_pr
     dzl, dzu, dvl, dvu = dual_steps(P, it, D.dx, D.ds, mu)
     dzp, dzn = pn_dual_steps(R, rr, D.dp, D.dn, mu)
-    a_du = jnp.min(
-        jnp.stack(
-            [
-                frac_dual(it.zl, dzl, P.hxl, tau),
-                frac_dual(it.zu, dzu, P.hxu, tau),
-                frac_dual(it.vl, dvl, P.hsl, tau),
-                frac_dual(it.vu, dvu, P.hsu, tau),
-                frac_dual(R.zp, dzp, rr, tau),
-                frac_dual(R.zn, dzn, rr, tau),
-            ]
-        )
+    a_du = smallest(
+        dual_ratios(it.zl, dzl, P.hxl, tau),
+        dual_ratios(it.zu, dzu, P.hxu, tau),
+        dual_ratios(it.vl, dvl, P.hsl, tau),
+        dual_ratios(it.vu, dvu, P.hsu, tau),
+        dual_ratios(R.zp, dzp, rr, tau),
+        dual_ratios(R.zn, dzn, rr, tau),
     )
     x_n = it.x + a_pr * D.dx
     s_n = it.s + a_pr * D.ds
@@ -217,7 +223,8 @@ def take_step(ctx: Context, P: Prob, S: State, ls: LineSearch, mu, tau):
     S_acc = lax.cond(
         ls.ftype, lambda s_: s_, lambda s_: s_._replace(gl=filter_add(o, s_.gl, ls.ref.theta, ls.ref.phi)), S
     )
-    return S_acc._replace(it=Iterate(x_n, s_n, y_n, zl, zu, vl, vu), rs=R_acc), a_du
+    it_n = Iterate(x=x_n, s=s_n, y=y_n, zl=zl, zu=zu, vl=vl, vu=vu)
+    return S_acc._replace(it=it_n, rs=R_acc), a_du
 
 
 def step_kind(ls: LineSearch, start_resto):
@@ -288,7 +295,7 @@ def transition(ctx: Context, P: Prob, S: State, S_acc: State, ls: LineSearch, mu
     f_next = jnp.where(ls.accepted, ls.f, S.ev.f)
     g_next = jnp.where(ls.accepted, ls.g, S.ev.g)
     grad_n, jac_n = derivs(ctx, P, S_next.it.x)
-    ev_next = Evals(f_next, g_next, grad_n, jac_n)
+    ev_next = Evals(f=f_next, g=g_next, grad=grad_n, jac=jac_n)
     # a failed restoration falls back to the last acceptable iterate; a failed watchdog to the
     # point where it started
     rollback = resto_failed & S.has_acc
@@ -309,7 +316,7 @@ def iteration(ctx: Context, P: Prob, S: State):
     status = step_status(stop_acceptable, resto_failed, nw.ok)
     D = ls.d
     # ||d|| as IPOPT's log: the primal step (x, s and, in the restoration phase, p and n)
-    d_norm = jnp.max(jnp.stack([jnp.max(jnp.abs(v), initial=0.0) for v in (D.dx, D.ds, D.dp, D.dn)]))
+    d_norm = max_abs(D.dx, D.ds, D.dp, D.dn)
     resto_iters = S.resto_iters + resto.astype(jnp.int32)
     info = StepInfo(
         mu=mu,

@@ -19,7 +19,7 @@ from jaxhumanoid.solvers.ipm.inertia import Inertia, inertia_corrected_factor
 from jaxhumanoid.solvers.ipm.problem import Context, hessian, jt_mult
 from jaxhumanoid.solvers.ipm.restoration import objective_grad, pn_barrier_grad, prox_weight, resto_resid
 from jaxhumanoid.solvers.ipm.state import Direction, Prob, State
-from jaxhumanoid.solvers.ipm.step import sigmas, solve_reduced
+from jaxhumanoid.solvers.ipm.step import flat, sigmas, solve_reduced
 
 
 class Newton(NamedTuple):
@@ -74,8 +74,23 @@ def residuals(ctx: Context, P: Prob, S: State, mu):
 
 def newton(ic: Inertia, d: Direction, res_ratio, res) -> Newton:
     """The Newton tuple of direction ``d`` solved with ``ic`` for the residuals ``res``."""
-    finite_step = jnp.all(jnp.isfinite(d.dx)) & jnp.all(jnp.isfinite(d.dy))
-    return Newton(ic, ic.ok & finite_step, d, res_ratio, *res)
+    finite_step = jnp.all(jnp.isfinite(flat([d.dx, d.dy])))
+    gx, gs, gp, gn, rx, rs, rp, rn, c = res
+    return Newton(
+        ic=ic,
+        ok=ic.ok & finite_step,
+        d=d,
+        res_ratio=res_ratio,
+        gx=gx,
+        gs=gs,
+        gp=gp,
+        gn=gn,
+        rx=rx,
+        rs=rs,
+        rp=rp,
+        rn=rn,
+        c=c,
+    )
 
 
 def newton_step(ctx: Context, P: Prob, S: State, ic: Inertia, mu) -> Newton:
@@ -83,7 +98,7 @@ def newton_step(ctx: Context, P: Prob, S: State, ic: Inertia, mu) -> Newton:
     res = residuals(ctx, P, S, mu)
     _, _, _, _, rx, rs, rp, rn, c = res
     dx, ds, dy, dp, dn, res_ratio = solve_reduced(ctx, P, ic.A, ic.B, ic.fac, ic.invs, rx, rs, rp, rn, c)
-    return newton(ic, Direction(dx, ds, dy, dp, dn), res_ratio, res)
+    return newton(ic, Direction(dx=dx, ds=ds, dy=dy, dp=dp, dn=dn), res_ratio, res)
 
 
 def search_direction(ctx: Context, P: Prob, S: State, mu) -> Newton:
@@ -94,7 +109,8 @@ def search_direction(ctx: Context, P: Prob, S: State, mu) -> Newton:
 def corrected_direction(ctx: Context, P: Prob, nw: Newton, c_soc) -> Direction:
     """The second-order correction (Sec. 2.4): (13) with the same matrix and c replaced by c_soc."""
     ic = nw.ic
-    return Direction(*solve_reduced(ctx, P, ic.A, ic.B, ic.fac, ic.invs, nw.rx, nw.rs, nw.rp, nw.rn, c_soc)[:5])
+    dx, ds, dy, dp, dn, _ = solve_reduced(ctx, P, ic.A, ic.B, ic.fac, ic.invs, nw.rx, nw.rs, nw.rp, nw.rn, c_soc)
+    return Direction(dx=dx, ds=ds, dy=dy, dp=dp, dn=dn)
 
 
 def directional_derivative(nw: Newton):

@@ -158,7 +158,7 @@ def _run_stepped(core, args, progress: IterationCallback):
     at_x0, _ = call("grad_jac", fns.grad_jac, B.x0, p)
     (f, g), _ = call("fg", fns.fg, B.x, p)
     (grad, jac), _ = call("grad_jac", fns.grad_jac, B.x, p)
-    (S, P), _ = call("start", core["start"], B, p, at_x0, Evals(f, g, grad, jac), opts)
+    (S, P), _ = call("start", core["start"], B, p, at_x0, Evals(f=f, g=g, grad=grad, jac=jac), opts)
     k_done, chunk = 0, 1
     progress(0, float(S.hist["obj"][0]), float(S.hist["inf_pr"][0]))
     while not bool(S.done):

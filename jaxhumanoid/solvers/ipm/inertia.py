@@ -171,4 +171,4 @@ def inertia_corrected_factor(
     )
     pert = jnp.where(ok, finalize_test(o, test, pert), pert)
     new_dw_last = jnp.where(ok & (dw > 0), dw, dw_last)
-    return Inertia(A, B, fac, invs, ok, dw, dc, new_dw_last, trials, pert)
+    return Inertia(A=A, B=B, fac=fac, invs=invs, ok=ok, dw=dw, dc=dc, dw_last=new_dw_last, n_fact=trials, pert=pert)

@@ -25,7 +25,7 @@ from jaxhumanoid.solvers.ipm.options import IPMOptions
 from jaxhumanoid.solvers.ipm.problem import Context, evaluate
 from jaxhumanoid.solvers.ipm.restoration import merit, resto_resid
 from jaxhumanoid.solvers.ipm.state import Direction, Globalization, Iterate, Prob, Resto, State, Watchdog, tree_where
-from jaxhumanoid.solvers.ipm.step import frac_dual, frac_to_boundary
+from jaxhumanoid.solvers.ipm.step import boundary_ratios, dual_ratios, max_abs, smallest
 
 EPS = float(np.finfo(np.float64).eps)
 
@@ -142,7 +142,7 @@ def trial_eval(ctx: Context, P: Prob, R: Resto, x, s, pv, nv, mu) -> Trial:
     s = jnp.where(P.free, g, s)
     theta, phi = merit(ctx.o, P, R, f, g, x, s, pv, nv, mu)
     finite = jnp.isfinite(f) & jnp.all(jnp.isfinite(g)) & jnp.isfinite(phi)
-    return Trial(f, g, s, jnp.where(finite, theta, jnp.inf), jnp.where(finite, phi, jnp.inf))
+    return Trial(f=f, g=g, s=s, theta=jnp.where(finite, theta, jnp.inf), phi=jnp.where(finite, phi, jnp.inf))
 
 
 def trial_at(ctx: Context, P: Prob, it: Iterate, R: Resto, mu, a, d: Direction) -> Trial:
@@ -152,16 +152,14 @@ def trial_at(ctx: Context, P: Prob, it: Iterate, R: Resto, mu, a, d: Direction) 
 
 def step_max(P: Prob, it: Iterate, R: Resto, rr, tau, d: Direction):
     """Fraction to the boundary (15) for x, s and, in the restoration phase, p, n."""
-    return jnp.minimum(
-        frac_to_boundary(P, it.x, it.s, d.dx, d.ds, tau),
-        jnp.minimum(frac_dual(R.p, d.dp, rr, tau), frac_dual(R.n, d.dn, rr, tau)),
-    )
+    pn = dual_ratios(R.p, d.dp, rr, tau), dual_ratios(R.n, d.dn, rr, tau)
+    return smallest(*boundary_ratios(P, it.x, it.s, d.dx, d.ds, tau), *pn)
 
 
 def tiny_step(it: Iterate, d: Direction, ok_step, resto):
     """The step is below 10 eps relative to the iterate (IPOPT's tiny step)."""
-    tiny = jnp.max(jnp.abs(d.dx) / (1.0 + jnp.abs(it.x)), initial=0.0) < 10 * EPS
-    return tiny & (jnp.max(jnp.abs(d.ds) / (1.0 + jnp.abs(it.s)), initial=0.0) < 10 * EPS) & ok_step & ~resto
+    rel = max_abs(d.dx / (1.0 + jnp.abs(it.x)), d.ds / (1.0 + jnp.abs(it.s)))
+    return (rel < 10 * EPS) & ok_step & ~resto
 
 
 def watchdog_start(o: IPMOptions, W: Watchdog, nupd, resto):
@@ -210,14 +208,14 @@ def _start(ctx: Context, S: State, nw: Newton) -> Search:
     """The loop's state before the first trial (every field but ``phase`` is overwritten)."""
     z, zi, zb = jnp.zeros(()), jnp.zeros((), jnp.int32), jnp.zeros((), bool)
     g, s = jnp.zeros(ctx.m), jnp.zeros(ctx.m)
-    trial = Trial(z, g, s, z, z)
+    trial = Trial(f=z, g=g, s=s, theta=z, phi=z)
     return Search(
-        jnp.full((), FIRST, jnp.int32),
-        trial,
-        zb,
-        zb,
-        SOC(zi, g, z, zb, zb, zb, z, nw.d, z, g, s),
-        Backtrack(z, zi, zb, zb, z, g, s, zb),
+        phase=jnp.full((), FIRST, jnp.int32),
+        first=trial,
+        acc1=zb,
+        ft1=zb,
+        soc=SOC(p=zi, csoc=g, theta_old=z, active=zb, acc=zb, ftype=zb, a=z, d=nw.d, f=z, g=g, s=s),
+        bt=Backtrack(a=z, t=zi, acc=zb, ftype=zb, f=z, g=g, s=s, fail=zb),
     )
 
 
@@ -238,9 +236,9 @@ def _after_first(ctx: Context, P: Prob, S: State, nw: Newton, B: Criteria, L: Se
     correct = (~acc1) & (t.theta >= B.theta_k) & nw.ok & (o.max_soc > 0) & ~B.in_wd & ~B.W.skip_first
     csoc = B.amax * nw.c + resto_resid(P, R, t.g, t.s, R.p + B.amax * d.dp, R.n + B.amax * d.dn)
     zi, zb = jnp.zeros((), jnp.int32), jnp.zeros((), bool)
-    soc = SOC(zi, csoc, t.theta, correct, zb, zb, B.amax, d, t.f, t.g, t.s)
-    bt = Backtrack(0.5 * B.amax, jnp.ones((), jnp.int32), zb, zb, t.f, t.g, t.s, zb)
-    L = Search(L.phase, t, acc1, ft1, soc, bt)
+    soc = SOC(p=zi, csoc=csoc, theta_old=t.theta, active=correct, acc=zb, ftype=zb, a=B.amax, d=d, f=t.f, g=t.g, s=t.s)
+    bt = Backtrack(a=0.5 * B.amax, t=jnp.ones((), jnp.int32), acc=zb, ftype=zb, f=t.f, g=t.g, s=t.s, fail=zb)
+    L = Search(phase=L.phase, first=t, acc1=acc1, ft1=ft1, soc=soc, bt=bt)
     return tree_where(correct, L._replace(phase=jnp.full((), CORRECT, jnp.int32)), _leave_corrections(L, nw, B))
 
 
@@ -254,7 +252,9 @@ def _after_correction(
     p = Q.p + 1
     cont = (~acc) & (p < o.max_soc) & (t.theta <= o.kappa_soc * Q.theta_old)
     csoc = a * Q.csoc + resto_resid(P, R, t.g, t.s, R.p + a * d.dp, R.n + a * d.dn)
-    L = L._replace(soc=SOC(p, csoc, t.theta, cont, acc, ftype, a, d, t.f, t.g, t.s))
+    L = L._replace(
+        soc=SOC(p=p, csoc=csoc, theta_old=t.theta, active=cont, acc=acc, ftype=ftype, a=a, d=d, f=t.f, g=t.g, s=t.s)
+    )
     return tree_where(cont, L, _leave_corrections(L, nw, B))
 
 
@@ -264,7 +264,7 @@ def _after_halving(ctx: Context, S: State, B: Criteria, L: Search, t: Trial) -> 
     acc, ftype = acceptable(o, S.gl, B.ref, T.a, t.theta, t.phi)
     a_next = 0.5 * T.a
     fail = (~acc) & ((a_next < B.a_min) | (T.t + 1 >= o.max_ls_trials))
-    bt = Backtrack(jnp.where(acc, T.a, a_next), T.t + 1, acc, ftype, t.f, t.g, t.s, fail)
+    bt = Backtrack(a=jnp.where(acc, T.a, a_next), t=T.t + 1, acc=acc, ftype=ftype, f=t.f, g=t.g, s=t.s, fail=fail)
     return L._replace(phase=jnp.where(acc | fail, DONE, HALVE).astype(jnp.int32), bt=bt)
 
 
@@ -316,7 +316,8 @@ def line_search(ctx: Context, P: Prob, S: State, nw: Newton, mu, tau, nupd) -> L
     in_wd = W.on | start_wd
     ref = Reference(jnp.where(W.on, W.theta, theta_k), jnp.where(W.on, W.phi, phi_k), jnp.where(W.on, W.gd, gd))
     tiny = tiny_step(it, d, ok_step, resto)
-    L = search(ctx, P, S, nw, mu, tau, Criteria(ref, theta_k, amax, a_min, tiny, W, in_wd))
+    B = Criteria(ref=ref, theta_k=theta_k, amax=amax, a_min=a_min, tiny=tiny, W=W, in_wd=in_wd)
+    L = search(ctx, P, S, nw, mu, tau, B)
     first, acc1, ft1, soc, ls = L.first, L.acc1, L.ft1, L.soc, L.bt
 
     # watchdog outcome: an acceptable full step ends it; otherwise the full step is taken
@@ -330,28 +331,28 @@ def line_search(ctx: Context, P: Prob, S: State, nw: Newton, mu, tau, nupd) -> L
     accepted = ok_step & (acc1 | soc.acc | ls.acc | wd_tentative)
     a_pr = jnp.where(acc1 | wd_tentative, amax, jnp.where(use_soc, soc.a, ls.a))
     ftype = jnp.where(acc1, ft1, jnp.where(use_soc, soc.ftype, ls.ftype)) | tiny | wd_tentative
-    d_taken = Direction(*(jnp.where(use_soc, a_, b_) for a_, b_ in zip(soc.d, d)))
+    d_taken = tree_where(use_soc, soc.d, d)
     f_new = jnp.where(acc1, first.f, jnp.where(use_soc, soc.f, ls.f))
     g_new = jnp.where(acc1, first.g, jnp.where(use_soc, soc.g, ls.g))
     n_trials = 1 + soc.p + jnp.where(use_bt | (~accepted), ls.t - 1, 0)
     return LineSearch(
-        accepted,
-        a_pr,
-        amax,
-        ftype,
-        d_taken,
-        f_new,
-        g_new,
-        n_trials,
-        use_soc,
-        tiny,
-        theta_k,
-        phi_k,
-        gd,
-        ref,
-        W,
-        start_wd,
-        in_wd,
-        wd_tentative,
-        wd_reset,
+        accepted=accepted,
+        a_pr=a_pr,
+        amax=amax,
+        ftype=ftype,
+        d=d_taken,
+        f=f_new,
+        g=g_new,
+        n_trials=n_trials,
+        use_soc=use_soc,
+        tiny=tiny,
+        theta_k=theta_k,
+        phi_k=phi_k,
+        gd=gd,
+        ref=ref,
+        wd=W,
+        start_wd=start_wd,
+        in_wd=in_wd,
+        wd_tentative=wd_tentative,
+        wd_reset=wd_reset,
     )

@@ -54,6 +54,7 @@ from __future__ import annotations
 
 import math
 
+import jax
 import jax.numpy as jnp
 from jax import lax
 
@@ -64,7 +65,7 @@ from jaxhumanoid.solvers.ipm.inertia import Inertia
 from jaxhumanoid.solvers.ipm.options import IPMOptions
 from jaxhumanoid.solvers.ipm.problem import Context, jt_mult, slacks, theta_of
 from jaxhumanoid.solvers.ipm.state import AdaptiveMu, Direction, Iterate, Prob, State, tree_where
-from jaxhumanoid.solvers.ipm.step import dual_steps, frac_dual, frac_to_boundary, solve_reduced
+from jaxhumanoid.solvers.ipm.step import dual_ratios, dual_steps, frac_to_boundary, smallest, solve_reduced
 from jaxhumanoid.solvers.ipm.termination import errors_at
 
 GOLDEN = (3.0 - math.sqrt(5.0)) / 2.0
@@ -83,7 +84,13 @@ def avrg_compl(P: Prob, it: Iterate):
 def fresh_adaptive(o: IPMOptions, P: Prob, it: Iterate) -> AdaptiveMu:
     """Free mode, an empty filter and mu_max = mu_max_fact * avrg at the start point ``it``."""
     inf = jnp.full(o.filter_size, jnp.inf)
-    return AdaptiveMu(jnp.ones((), bool), o.mu_max_fact * avrg_compl(P, it)[0], inf, inf, jnp.zeros((), jnp.int32))
+    return AdaptiveMu(
+        free=jnp.ones((), bool),
+        mu_max=o.mu_max_fact * avrg_compl(P, it)[0],
+        filt_f=inf,
+        filt_theta=inf,
+        filt_n=jnp.zeros((), jnp.int32),
+    )
 
 
 def adaptive_state(S: State) -> AdaptiveMu:
@@ -155,7 +162,7 @@ def quality_function(P: Prob, it: Iterate, tau, aff: Direction, cen: Direction, 
     dzl, dzu, dvl, dvu = dual_steps(P, it, dx, ds, sigma * avg)
     a_pr = frac_to_boundary(P, it.x, it.s, dx, ds, tau)
     zs = ((it.zl, dzl, P.hxl), (it.zu, dzu, P.hxu), (it.vl, dvl, P.hsl), (it.vu, dvu, P.hsu))
-    a_du = jnp.min(jnp.stack([frac_dual(z, dz, m_, tau) for z, dz, m_ in zs]))
+    a_du = smallest(*(dual_ratios(z, dz, m_, tau) for z, dz, m_ in zs))
     dxl, dxu, dsl, dsu = slacks(P, it.x, it.s)
     new_slacks = (dxl + a_pr * dx, dxu - a_pr * dx, dsl + a_pr * ds, dsu - a_pr * ds)
     compl = sum(jnp.sum(jnp.where(m_, (sl * (z + a_du * dz)) ** 2, 0.0)) for sl, (z, dz, m_) in zip(new_slacks, zs))
@@ -251,11 +258,12 @@ def oracle_direction(ctx: Context, P: Prob, S: State, ic: Inertia, tau):
     mu_min, mu_max = mu_range(ctx.o, P, adaptive_state(S))
     zm = jnp.zeros(ctx.m)
     _, _, _, _, rx0, rs0, _, _, c = residuals(ctx, P, S, 0.0)
-    *aff, ratio_a = solve_reduced(ctx, P, ic.A, ic.B, ic.fac, ic.invs, rx0, rs0, zm, zm, c)
+    dx, ds, dy, dp, dn, ratio_a = solve_reduced(ctx, P, ic.A, ic.B, ic.fac, ic.invs, rx0, rs0, zm, zm, c)
+    d_aff = Direction(dx=dx, ds=ds, dy=dy, dp=dp, dn=dn)
     gx_c, gs_c = barrier_grad(P, jnp.zeros(ctx.n), it.x, it.s, avg, ctx.o.kappa_d)
     rs_c = jnp.where(P.hsl | P.hsu, gs_c, 0.0)
-    *cen, ratio_c = solve_reduced(ctx, P, ic.A, ic.B, ic.fac, ic.invs, gx_c, rs_c, zm, zm, zm)
-    d_aff, d_cen = Direction(*aff), Direction(*cen)
+    dx, ds, dy, dp, dn, ratio_c = solve_reduced(ctx, P, ic.A, ic.B, ic.fac, ic.invs, gx_c, rs_c, zm, zm, zm)
+    d_cen = Direction(dx=dx, ds=ds, dy=dy, dp=dp, dn=dn)
     norms = oracle_norms(ctx, P, S, c, n_c)
 
     def q(sigma):
@@ -264,5 +272,5 @@ def oracle_direction(ctx: Context, P: Prob, S: State, ic: Inertia, tau):
     sigma = oracle_sigma(ctx.o, q, avg, mu_min, mu_max)
     mu = jnp.where(n_c == 0, mu_min, jnp.minimum(jnp.maximum(sigma * avg, mu_min), mu_max))
     sig = jnp.where(avg > 0, mu / jnp.where(avg > 0, avg, 1.0), 0.0)
-    d = Direction(*(a + sig * b for a, b in zip(d_aff, d_cen)))
+    d = jax.tree.map(lambda a, b: a + sig * b, d_aff, d_cen)
     return mu, newton(ic, d, jnp.maximum(ratio_a, ratio_c), residuals(ctx, P, S, mu))

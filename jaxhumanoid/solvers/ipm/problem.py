@@ -47,14 +47,14 @@ class Context(NamedTuple):
 
 def make_context(nlp, o: IPMOptions) -> Context:
     return Context(
-        nlp,
-        kkt.structure_of(nlp),
-        o,
-        np.asarray(nlp.jac_rows, np.int64),
-        np.asarray(nlp.jac_cols, np.int64),
-        np.asarray(nlp.hess_rows, np.int64),
-        np.asarray(nlp.hess_cols, np.int64),
-        kkt.condensed_structure_of(nlp) if o.kkt_method == "condensed" else None,
+        nlp=nlp,
+        st=kkt.structure_of(nlp),
+        o=o,
+        jr=np.asarray(nlp.jac_rows, np.int64),
+        jc=np.asarray(nlp.jac_cols, np.int64),
+        hr=np.asarray(nlp.hess_rows, np.int64),
+        hc=np.asarray(nlp.hess_cols, np.int64),
+        cst=kkt.condensed_structure_of(nlp) if o.kkt_method == "condensed" else None,
     )
 
 
@@ -80,7 +80,7 @@ def derivs(ctx: Context, P: Prob, x):
 def scaled(ctx: Context, P: Prob, raw: Evals) -> Evals:
     """``raw`` (unscaled f, g, gradient and Jacobian values, ``raw_evals``) in the scaled problem's
     units, as ``evaluate`` and ``derivs`` give them."""
-    return Evals(P.sf * raw.f, P.sg * raw.g, P.sf * raw.grad, P.sg[ctx.jr] * raw.jac)
+    return Evals(f=P.sf * raw.f, g=P.sg * raw.g, grad=P.sf * raw.grad, jac=P.sg[ctx.jr] * raw.jac)
 
 
 def hessian(ctx: Context, P: Prob, x, y, resto):
@@ -132,7 +132,8 @@ def raw_evals(ctx: Context, xs, p) -> Evals:
     evaluation for all rows (``lax.map``), so that the start adds no copy of the NLP's functions
     to the compiled program."""
     nlp = ctx.nlp
-    return Evals(*lax.map(lambda x: (nlp.f(x, p), nlp.g(x, p), nlp.grad(x, p), nlp.jac_values(x, p)), xs))
+    f, g, grad, jac = lax.map(lambda x: (nlp.f(x, p), nlp.g(x, p), nlp.grad(x, p), nlp.jac_values(x, p)), xs)
+    return Evals(f=f, g=g, grad=grad, jac=jac)
 
 
 def scaling(ctx: Context, g0, j0, fixed):
@@ -194,14 +195,31 @@ def prepare(ctx: Context, x0, xl, xu, gl, gu) -> Prepared:
     free = ~eq & ~hsl & ~hsu
     x0 = jnp.where(fixed, xl, x0)
     x = push(x0, xl, xu, hxl, hxu, o.bound_push, o.bound_frac)
-    return Prepared(xl, xu, gl, gu, hxl, hxu, fixed, eq, hsl, hsu, free, x0, x)
+    return Prepared(
+        xl=xl, xu=xu, gl=gl, gu=gu, hxl=hxl, hxu=hxu, fixed=fixed, eq=eq, hsl=hsl, hsu=hsu, free=free, x0=x0, x=x
+    )
 
 
 def scaled_prob(ctx: Context, B: Prepared, p, grad0, jac0) -> Prob:
     """The scaled problem's data, its scaling that of the gradient ``grad0`` and Jacobian values
     ``jac0`` at x0 before the push (Sec. 3.8)."""
     sf, sg = scaling(ctx, grad0, jac0, B.fixed)
-    return Prob(p, B.xl, B.xu, B.gl * sg, B.gu * sg, B.hxl, B.hxu, B.fixed, B.eq, B.hsl, B.hsu, B.free, sf, sg)
+    return Prob(
+        p=p,
+        xl=B.xl,
+        xu=B.xu,
+        gl=B.gl * sg,
+        gu=B.gu * sg,
+        hxl=B.hxl,
+        hxu=B.hxu,
+        fixed=B.fixed,
+        eq=B.eq,
+        hsl=B.hsl,
+        hsu=B.hsu,
+        free=B.free,
+        sf=sf,
+        sg=sg,
+    )
 
 
 def make_prob(ctx: Context, x0, xl, xu, gl, gu, p) -> tuple[Prob, jax.Array, Evals]:

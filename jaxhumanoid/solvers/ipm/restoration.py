@@ -18,7 +18,7 @@ from jaxhumanoid.solvers.ipm.filter import filter_ok
 from jaxhumanoid.solvers.ipm.options import IPMOptions
 from jaxhumanoid.solvers.ipm.problem import Context, constr_resid, slacks
 from jaxhumanoid.solvers.ipm.state import Iterate, Prob, Resto, State, fresh_globalization, resto_off
-from jaxhumanoid.solvers.ipm.step import clip_mult, frac_dual
+from jaxhumanoid.solvers.ipm.step import clip_mult, dual_ratios, max_abs, smallest
 
 
 def prox_weight(o: IPMOptions, R: Resto, mu):
@@ -113,13 +113,13 @@ def enter_restoration(ctx: Context, P: Prob, S: State, mu, theta_k, phi_k) -> St
         outer=S.gl,
     )
     it_r = Iterate(
-        it.x,
-        it.s,
-        jnp.zeros(ctx.m),
-        jnp.minimum(rho, it.zl),
-        jnp.minimum(rho, it.zu),
-        jnp.minimum(rho, it.vl),
-        jnp.minimum(rho, it.vu),
+        x=it.x,
+        s=it.s,
+        y=jnp.zeros(ctx.m),
+        zl=jnp.minimum(rho, it.zl),
+        zu=jnp.minimum(rho, it.zu),
+        vl=jnp.minimum(rho, it.vl),
+        vu=jnp.minimum(rho, it.vu),
     )
     return S._replace(
         it=it_r,
@@ -155,9 +155,9 @@ def leave_restoration(ctx: Context, P: Prob, S: State) -> State:
     new = slacks(P, it.x, it.s)
     bounded = (P.hxl, P.hxu, P.hsl, P.hsu)
     dz = [jnp.where(msk, ((a - b) * z + mu) / a - z, 0.0) for z, a, b, msk in zip(R.z0, old, new, bounded)]
-    a_du = jnp.min(jnp.stack([frac_dual(z, d, msk, tau) for z, d, msk in zip(R.z0, dz, bounded)]))
+    a_du = smallest(*(dual_ratios(z, d, msk, tau) for z, d, msk in zip(R.z0, dz, bounded)))
     z = [z0 + a_du * d for z0, d in zip(R.z0, dz)]
-    too_big = jnp.max(jnp.stack([jnp.max(jnp.abs(v), initial=0.0) for v in z])) > o.bound_mult_reset_threshold
+    too_big = max_abs(*z) > o.bound_mult_reset_threshold
     z = [jnp.where(too_big, jnp.where(msk, 1.0, 0.0), v) for v, msk in zip(z, bounded)]
-    it_o = Iterate(it.x, it.s, jnp.zeros(ctx.m), *z)
+    it_o = Iterate(x=it.x, s=it.s, y=jnp.zeros(ctx.m), zl=z[0], zu=z[1], vl=z[2], vu=z[3])
     return S._replace(it=it_o, rs=resto_off(R), mu=mu, gl=R.outer, n_acceptable=jnp.zeros((), jnp.int32))

@@ -89,13 +89,13 @@ def fresh_globalization(size: int, theta_min, theta_max) -> Globalization:
     """An empty filter of ``size`` entries and no perturbation history."""
     inf = jnp.full(size, jnp.inf)
     return Globalization(
-        inf,
-        inf,
-        jnp.zeros((), jnp.int32),
-        jnp.asarray(theta_min, float),
-        jnp.asarray(theta_max, float),
-        jnp.zeros(()),
-        jnp.zeros(3, jnp.int32),
+        filt_theta=inf,
+        filt_phi=inf,
+        filt_n=jnp.zeros((), jnp.int32),
+        theta_min=jnp.asarray(theta_min, float),
+        theta_max=jnp.asarray(theta_max, float),
+        dw_last=jnp.zeros(()),
+        pert=jnp.zeros(3, jnp.int32),
     )
 
 
@@ -138,21 +138,21 @@ def inactive_resto(n: int, m: int, filter_size: int) -> Resto:
     z0 = jnp.zeros(())
     return resto_off(
         Resto(
-            z0 > 0,
-            z0 > 0,
-            zm,
-            zm,
-            zm,
-            zm,
-            zn,
-            zn,
-            zm,
-            (zn, zn, zm, zm),
-            z0,
-            z0,
-            z0,
-            z0,
-            fresh_globalization(filter_size, 0.0, 0.0),
+            on=z0 > 0,
+            fresh=z0 > 0,
+            p=zm,
+            n=zm,
+            zp=zm,
+            zn=zm,
+            xR=zn,
+            dr=zn,
+            s0=zm,
+            z0=(zn, zn, zm, zm),
+            mu_orig=z0,
+            theta_ref=z0,
+            phi_ref=z0,
+            inf_ref=z0,
+            outer=fresh_globalization(filter_size, 0.0, 0.0),
         )
     )
 

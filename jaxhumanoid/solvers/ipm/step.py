@@ -101,8 +101,8 @@ def solve_reduced(ctx: Context, P: Prob, A, B, fac, invs, rx, rs, rp, rn, c):
     bc = jnp.where(P.free, 0.0, -c - inv_s * rs - inv_p * rp + inv_n * rn)
     dx, dy, res = solve_kkt(ctx, fac, A, B, bx, bc)
     # the residual ratio of the reduced system, from the refinement's last residual
-    nsol = jnp.maximum(jnp.max(jnp.abs(dx), initial=0.0), jnp.max(jnp.abs(dy), initial=0.0))
-    nrhs = jnp.maximum(jnp.max(jnp.abs(bx), initial=0.0), jnp.max(jnp.abs(bc), initial=0.0))
+    nsol = max_abs(dx, dy)
+    nrhs = max_abs(bx, bc)
     ratio = res / jnp.maximum(jnp.minimum(nsol, 1e6 * nrhs) + nrhs, 1e-300)
     ds = jnp.where(P.eq | P.free, 0.0, inv_s * (dy - rs))
     dy = jnp.where(P.free, 0.0, dy)
@@ -120,20 +120,52 @@ def dual_steps(P: Prob, it: Iterate, dx, ds, mu):
     return dzl, dzu, dvl, dvu
 
 
+def flat(vs):
+    """The arrays ``vs`` raveled into one vector.
+
+    A maximum, minimum or ``all`` of several vectors is taken as one reduction of their
+    concatenation: each reduction of a long vector is two to three kernels of the compiled loop
+    body (XLA's CPU compiler splits it into reduce-windows), and compiling kernels is most of the
+    IPM's compile time; maxima and minima do not depend on the order, so the values are the same."""
+    return jnp.concatenate([jnp.ravel(v) for v in vs])
+
+
+def max_abs(*vs):
+    """max |v_i| over all entries of the vectors ``vs`` (0 if they are empty), one reduction."""
+    return jnp.max(jnp.abs(flat(vs)), initial=0.0)
+
+
+def smallest(*ratios):
+    """min(1, every entry of ``ratios``): the step of (15) from the candidates of
+    ``boundary_ratios`` and ``dual_ratios``, one reduction."""
+    return jnp.min(flat(ratios), initial=1.0)
+
+
+def boundary_ratios(P: Prob, x, s, dx, ds, tau):
+    """The candidates (n,), (n,), (m,), (m,) of the fraction to the boundary (15) for x, s: the
+    step to tau times the distance to each finite bound approached, 1 elsewhere."""
+    dxl, dxu, dsl, dsu = slacks(P, x, s)
+    return (
+        jnp.where(P.hxl & (dx < 0), -tau * dxl / jnp.where(dx < 0, dx, -1.0), 1.0),
+        jnp.where(P.hxu & (dx > 0), tau * dxu / jnp.where(dx > 0, dx, 1.0), 1.0),
+        jnp.where(P.hsl & (ds < 0), -tau * dsl / jnp.where(ds < 0, ds, -1.0), 1.0),
+        jnp.where(P.hsu & (ds > 0), tau * dsu / jnp.where(ds > 0, ds, 1.0), 1.0),
+    )
+
+
 def frac_to_boundary(P: Prob, x, s, dx, ds, tau):
     """Largest alpha in (0, 1] keeping x, s strictly inside their bounds, (15)."""
-    dxl, dxu, dsl, dsu = slacks(P, x, s)
-    a = jnp.ones(())
-    a = jnp.minimum(a, jnp.min(jnp.where(P.hxl & (dx < 0), -tau * dxl / jnp.where(dx < 0, dx, -1.0), 1.0), initial=1.0))
-    a = jnp.minimum(a, jnp.min(jnp.where(P.hxu & (dx > 0), tau * dxu / jnp.where(dx > 0, dx, 1.0), 1.0), initial=1.0))
-    a = jnp.minimum(a, jnp.min(jnp.where(P.hsl & (ds < 0), -tau * dsl / jnp.where(ds < 0, ds, -1.0), 1.0), initial=1.0))
-    a = jnp.minimum(a, jnp.min(jnp.where(P.hsu & (ds > 0), tau * dsu / jnp.where(ds > 0, ds, 1.0), 1.0), initial=1.0))
-    return a
+    return smallest(*boundary_ratios(P, x, s, dx, ds, tau))
+
+
+def dual_ratios(z, dz, mask, tau):
+    """The candidates of the fraction to the boundary (15) for a vector bounded below by 0."""
+    return jnp.where(mask & (dz < 0), -tau * z / jnp.where(dz < 0, dz, -1.0), 1.0)
 
 
 def frac_dual(z, dz, mask, tau):
     """Fraction to the boundary (15) for a vector bounded below by 0."""
-    return jnp.min(jnp.where(mask & (dz < 0), -tau * z / jnp.where(dz < 0, dz, -1.0), 1.0), initial=1.0)
+    return smallest(dual_ratios(z, dz, mask, tau))
 
 
 def clip_mult(o: IPMOptions, z, d, mask, mu):

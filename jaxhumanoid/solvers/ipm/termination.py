@@ -19,6 +19,7 @@ from jaxhumanoid.solvers.ipm.barrier import mu_floor
 from jaxhumanoid.solvers.ipm.problem import Context, constr_resid, jt_mult, slacks
 from jaxhumanoid.solvers.ipm.restoration import objective_grad, resto_resid
 from jaxhumanoid.solvers.ipm.state import HIST_FIELDS, Evals, Iterate, Prob, Resto, State, StepInfo, tree_where
+from jaxhumanoid.solvers.ipm.step import flat, max_abs
 from jaxhumanoid.solvers.status import Status
 
 
@@ -71,9 +72,9 @@ def error_terms(ctx: Context, P: Prob, it: Iterate, ev: Evals, R: Resto) -> Erro
         (R.p * R.zp, rr),
         (R.n * R.zn, rr),
     )
-    c_max = jnp.max(jnp.stack([jnp.max(jnp.where(m_, v, -jnp.inf), initial=-jnp.inf) for v, m_ in products]))
-    c_min = jnp.min(jnp.stack([jnp.min(jnp.where(m_, v, jnp.inf), initial=jnp.inf) for v, m_ in products]))
-    nz = (jnp.sum(P.hxl) + jnp.sum(P.hxu) + jnp.sum(P.hsl) + jnp.sum(P.hsu) + 2 * jnp.sum(rr)).astype(float)
+    c_max = jnp.max(flat([jnp.where(m_, v, -jnp.inf) for v, m_ in products]), initial=-jnp.inf)
+    c_min = jnp.min(flat([jnp.where(m_, v, jnp.inf) for v, m_ in products]), initial=jnp.inf)
+    nz = (jnp.sum(flat([P.hxl, P.hxu, P.hsl, P.hsu])) + 2 * jnp.sum(rr)).astype(float)
     z1 = (
         jnp.sum(jnp.abs(it.zl))
         + jnp.sum(jnp.abs(it.zu))
@@ -83,7 +84,7 @@ def error_terms(ctx: Context, P: Prob, it: Iterate, ev: Evals, R: Resto) -> Erro
     )
     return ErrorTerms(
         jt=jt_mult(ctx, ev.jac, y),
-        dual_s=jnp.maximum(jnp.max(jnp.abs(gLs), initial=0.0), jnp.max(gLpn, initial=0.0)),
+        dual_s=max_abs(gLs, gLpn),
         primal=jnp.max(jnp.abs(resto_resid(P, R, ev.g, s, R.p, R.n)), initial=0.0),
         sd=jnp.maximum(o.s_max, (jnp.sum(jnp.abs(y)) + z1) / jnp.maximum(1.0, ctx.m + nz)) / o.s_max,
         sc=jnp.maximum(o.s_max, z1 / jnp.maximum(1.0, nz)) / o.s_max,
@@ -97,7 +98,7 @@ def error_terms(ctx: Context, P: Prob, it: Iterate, ev: Evals, R: Resto) -> Erro
 def empty_terms(n: int) -> ErrorTerms:
     """Placeholder ``ErrorTerms`` (the shapes of a state before its first ``check``)."""
     z = jnp.zeros(())
-    return ErrorTerms(jnp.zeros(n), z, z, z, z, z, z, z, z)
+    return ErrorTerms(jt=jnp.zeros(n), dual_s=z, primal=z, sd=z, sc=z, c_max=z, c_min=z, pr_s=z, pr_u=z)
 
 
 def complementarity(T: ErrorTerms, mu):
@@ -210,12 +211,7 @@ def check(ctx: Context, P: Prob, S: State, info: StepInfo, status) -> State:
     # reaching a point the outer filter accepts: local infeasibility, unless it is feasible
     resto_conv = resto & ((o.tol >= err.E0) | ((n_acc >= o.acceptable_iter) & (o.acceptable_iter > 0)))
     resto_code = jnp.where(err.pr_s > 1e2 * o.tol, Status.Infeasible_Problem_Detected, Status.Restoration_Failed)
-    finite = (
-        jnp.isfinite(S.ev.f)
-        & jnp.all(jnp.isfinite(S.ev.g))
-        & jnp.all(jnp.isfinite(S.ev.grad))
-        & jnp.all(jnp.isfinite(S.ev.jac))
-    )
+    finite = jnp.isfinite(S.ev.f) & jnp.all(jnp.isfinite(flat([S.ev.g, S.ev.grad, S.ev.jac])))
     tiny_stop = (S.tiny_count >= 2) & (S.mu <= mu_floor(o, P) * 1.0000001)
     new_status = decide_status(
         status,

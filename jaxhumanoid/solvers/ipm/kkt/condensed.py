@@ -331,7 +331,7 @@ def eliminate_local(cst: CondensedStructure, A, B, rel_zero_tol=None, fast=True)
     CN = jnp.einsum("kun,kni->kui", CI, NI)
     F = jnp.einsum("kui,ki,kvi->kuv", CN, sI, CN)
     A_red, B_red = _reduced_blocks(cst, flat[cst.g_AU], flat[cst.g_BU], F)
-    return LocalElimination(NI, sI, info, CI, A_red, B_red, d.reshape(-1)[cst.v_pos])
+    return LocalElimination(NI=NI, sI=sI, info=info, CI=CI, A_red=A_red, B_red=B_red, dv=d.reshape(-1)[cst.v_pos])
 
 
 @functools.partial(jax.jit, static_argnames=("cst", "rel_zero_tol", "fast"))
@@ -344,7 +344,15 @@ def _factor_condensed(cst: CondensedStructure, A, B, rel_zero_tol=None, fast=Tru
     nzero_I = jnp.sum(loc.info[:, 1])
     npos_I = cst.S * cst.nI - jnp.sum(loc.info[:, 0]) - nzero_I - n_pos_pad
     return CondensedFactor(
-        loc.NI, loc.sI, loc.CI, red, loc.B_red, loc.dv, red.npos + npos_I, red.nneg + nneg_I, red.nzero + nzero_I
+        NI=loc.NI,
+        sI=loc.sI,
+        CI=loc.CI,
+        red=red,
+        BU=loc.B_red,
+        dv=loc.dv,
+        npos=red.npos + npos_I,
+        nneg=red.nneg + nneg_I,
+        nzero=red.nzero + nzero_I,
     )
 
 

@@ -162,7 +162,7 @@ def _block_loop(st: KKTStructure, sc: _Scaled, diag_r, fast, rel_zero_tol, early
     X1 = jnp.zeros((r_, nb), A.dtype).at[:, cb].set(Bs[0]).T  # B_0^T: block 0 is the border
     C0 = jnp.zeros((r_, r_), dtype=A.dtype)
     N_s, sg_s, info_s = (jnp.broadcast_to(a, (S,) + a.shape) for a in _skipped(nb, A.dtype))
-    out = _Blocks(N_s, sg_s, jnp.zeros((S, r_, nb), A.dtype), jnp.zeros((S, nb, r_), A.dtype), info_s)
+    out = _Blocks(N=N_s, sgn=sg_s, L=jnp.zeros((S, r_, nb), A.dtype), X=jnp.zeros((S, nb, r_), A.dtype), info=info_s)
 
     def go_on(c):
         return (c.k < S) & ~_all_true(c.dead) if early_exit else c.k < S
@@ -170,11 +170,12 @@ def _block_loop(st: KKTStructure, sc: _Scaled, diag_r, fast, rel_zero_tol, early
     def step(c):
         k = c.k
         Cn, Xn, Nk, sk, Lk, info = _eliminate(st, sc, k, c.C, c.X, diag_r, fast, rel_zero_tol)
-        out = _Blocks(*(o.at[k].set(v) for o, v in zip(c.out, (Nk, sk, Lk, c.X, info))))
+        new = _Blocks(N=Nk, sgn=sk, L=Lk, X=c.X, info=info)
+        out = jax.tree.map(lambda o, v: o.at[k].set(v), c.out, new)
         cnt = c.cnt + _counts(info, nb)
-        return _Loop(k + 1, Cn, Xn, cnt, c.dead | (early_exit & decided(cnt, k)), out)
+        return _Loop(k=k + 1, C=Cn, X=Xn, cnt=cnt, dead=c.dead | (early_exit & decided(cnt, k)), out=out)
 
-    init = _Loop(jnp.ones((), jnp.int32), C0, X1, jnp.zeros(3, jnp.int64), jnp.zeros((), bool), out)
+    init = _Loop(k=jnp.ones((), jnp.int32), C=C0, X=X1, cnt=jnp.zeros(3, jnp.int64), dead=jnp.zeros((), bool), out=out)
     return lax.while_loop(go_on, step, init)
 
 
@@ -224,7 +225,8 @@ def _factor(st: KKTStructure, A, B, rel_zero_tol, fast, early_exit=False):
     else:
         Nf, sg, L = N0[None], sg0[None], jnp.zeros((1, r_, nb), A.dtype)
         paths = info0[None, 2].astype(jnp.int32)
-    return Factor(Nf, sg, L, npos - st.n_pad_pos, nneg - st.n_pad_neg, nzero, d), paths
+    fac = Factor(N=Nf, sgn=sg, L=L, npos=npos - st.n_pad_pos, nneg=nneg - st.n_pad_neg, nzero=nzero, d=d)
+    return fac, paths
 
 
 def factor(
