@@ -56,6 +56,7 @@ import numpy as np
 from jaxhumanoid.runtime import enable_compilation_cache, environment
 from jaxhumanoid.solvers.ipm import batch_solve_ipm, solve_ipm
 from jaxhumanoid.solvers.ipopt import solve_ipopt
+from jaxhumanoid.strategy.handover import STAGE2_DEFAULTS
 from jaxhumanoid.strategy.runner import Runner
 from jaxhumanoid.strategy.settings import SolveSettings
 from jaxhumanoid.strategy.solve import solve
@@ -291,7 +292,7 @@ def programs_part(tasks: list[str], ref_dir: pathlib.Path) -> dict:
         task = kw.get("task", "T1")
         final = build_problem(task, SCHEME, N=int(kw.get("N", 100)), guess="linear")
         nlp, p, b = final.nlp, final.p, final.bounds
-        o = as_float64(make_options(dict(strat.STAGE2_DEFAULTS)))
+        o = as_float64(make_options(dict(STAGE2_DEFAULTS)))
         data = [jnp.asarray(a, float) for a in (b.x0, b.xl, b.xu, b.gl, b.gu)]
         core = driver._stepped_core(nlp)
         fns = core["nlp"]
