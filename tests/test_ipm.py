@@ -1,6 +1,8 @@
 """The own interior-point method on Hock-Schittkowski problems, a restoration case, an infeasible
 problem, a staged optimal-control problem, a vmap batch, warm start and option validation."""
 
+import dataclasses
+
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -237,3 +239,26 @@ def test_progress_sees_every_iterate_and_keeps_the_iterates():
     assert abs(ipopt_seen[-1][1] - ref.objective) <= 1e-9 * abs(ref.objective)
     with pytest.raises(ValueError, match="keep_history"):
         solve_ipm(nlp, p, bounds, options={"keep_history": False}, progress=lambda *a: None)
+
+
+@pytest.mark.parametrize("stepped", [False, True])
+def test_precompile_compiles_what_the_solve_runs(stepped):
+    """``precompile_ipm`` compiles, in the background, the programs a later solve of the same kind
+    runs (the one program, or the stepped ones with a progress callback): the solve compiles
+    nothing more and its iterates are those of a solve that compiled by itself."""
+    from jaxhumanoid.solvers.ipm import precompile_ipm
+
+    progress = (lambda *a: None) if stepped else None
+    cached, bounds, p, _ = tp.hs071()
+    alone = solve_ipm(dataclasses.replace(cached), p, bounds, progress=progress)
+    nlp = dataclasses.replace(cached)  # the same NLP with an empty cache: nothing compiled
+    future = precompile_ipm(nlp, p, bounds, stepped=stepped)
+    assert precompile_ipm(nlp, p, bounds, stepped=stepped) is future
+    future.result()
+    key = ("ipm", "stepped") if stepped else ("ipm", False)
+    compiled = nlp.cache[key]["compiled"]
+    before = set(compiled) if stepped else len(compiled)
+    assert before == {"prepare", "grad_jac", "fg", "start", "advance", "finish"} if stepped else before == 1
+    res = solve_ipm(nlp, p, bounds, progress=progress)
+    assert (set(compiled) if stepped else len(compiled)) == before
+    assert res.iterations == alone.iterations and np.array_equal(res.x, alone.x)

@@ -330,3 +330,21 @@ def test_stage_two_start_takes_velocities_from_the_interpolated_positions():
     assert np.max(np.abs(Zf[:, sl["qd"]])) < np.max(np.abs(plain[:, sl["qd"]])) - 2.0
     assert np.all(x0 >= final.bounds.xl) and np.all(x0 <= final.bounds.xu)
     assert np.array_equal(x0, np.clip(tr.free_from_full(final.layout, Zf), final.bounds.xl, final.bounds.xu))
+
+
+def test_precompile_compiles_the_nlp_the_run_solves():
+    """``Runner.precompile`` starts compiling the NLP that ``Runner.run`` will solve: the problem's
+    own under ``scaling="none"``, its scaled twin under ``"physical"``; CasADi compiles nothing."""
+    from jaxhumanoid.ocp.scaling import scaled_nlp
+
+    problem = build_problem(get_task("T4"), "A,F+C,2S", N=6)
+    Runner("casadi").precompile(problem, {})
+    assert not any(k[0] == "precompile" for k in problem.nlp.cache if isinstance(k, tuple))
+    Runner("ipopt", scaling="physical").precompile(problem, {})
+    scaled = scaled_nlp(problem.nlp)
+    (future,) = [v for k, v in scaled.cache.items() if isinstance(k, tuple) and k[0] == "precompile"]
+    future.result()
+    assert not any(k[0] == "precompile" for k in problem.nlp.cache if isinstance(k, tuple))
+    Runner("ipopt").precompile(problem, {})
+    (own,) = [v for k, v in problem.nlp.cache.items() if isinstance(k, tuple) and k[0] == "precompile"]
+    own.result()

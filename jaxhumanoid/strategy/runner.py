@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from jaxhumanoid.ocp.scaling import as_jax, physical_scaling, scaled_bounds, scaled_nlp
-from jaxhumanoid.solvers.ipm import solve_ipm
+from jaxhumanoid.solvers.ipm import precompile_ipm, solve_ipm
 from jaxhumanoid.solvers.ipopt import solve_ipopt
 from jaxhumanoid.solvers.result import IterationCallback, NLPResult, constraint_violation, unscaled, unscaled_progress
 from jaxhumanoid.strategy.problem import Problem
@@ -50,6 +50,20 @@ class Runner:
     def for_stage(self, stage: str) -> IterationCallback | None:
         """The progress callback of one run of ``stage``."""
         return None if self.progress is None else functools.partial(self.progress, stage)
+
+    def precompile(self, problem: Problem, options: Mapping[str, Any]) -> None:
+        """Start compiling, in background threads, what a later ``run`` of a problem shaped like
+        ``problem`` with ``options`` compiles (IPOPT: the NLP's three programs; the IPM: its own),
+        so that a later stage compiles while an earlier one solves; nothing for CasADi."""
+        s = None if self.scaling == "none" else physical_scaling(problem.layout, float(problem.p.T))
+        nlp, bounds = problem.nlp, problem.bounds
+        p: Any = problem.p
+        if s is not None:
+            nlp, p, bounds = scaled_nlp(nlp), (p, as_jax(s)), scaled_bounds(bounds, s)
+        if self.solver == "ipopt":
+            nlp.precompile(bounds.x0, p)
+        elif self.solver == "ipm":
+            precompile_ipm(nlp, p, bounds, dict(options), stepped=self.progress is not None)
 
     def run(self, problem: Problem, x0, options: Mapping[str, Any], stage: str) -> NLPResult:
         """One solve of ``problem`` from x0 with solver ``options``, reported as ``stage``."""

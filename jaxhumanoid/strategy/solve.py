@@ -238,9 +238,10 @@ def solve(
     )
     runner = Runner(solver, verbose, progress, settings.scaling)
     relaxed_runner = runner.with_solver(settings.relaxed_solver(solver))
-    dynamic = {solver, relaxed_runner.solver} if settings.handover == "continuation" else {solver}
-    if scheme.stages == 2 and "ipopt" in dynamic:  # IPOPT's dynamic stages compile while stage 1 runs
-        final.nlp.precompile(final.bounds.x0, final.p)
+    dynamic = [relaxed_runner, runner] if settings.handover == "continuation" else [runner]
+    if scheme.stages == 2:  # the dynamic stages compile while stage 1 runs
+        for r in {r.solver: r for r in dynamic}.values():
+            r.precompile(final, dynamic_options(options, settings, True))
     setup_final = time.perf_counter() - t0
     if scheme.stages == 1:
         x0 = final.bounds.x0

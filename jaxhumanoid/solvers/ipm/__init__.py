@@ -9,8 +9,8 @@ state in ``state`` and the iteration and loop in ``algorithm``.
 """
 
 from jaxhumanoid.solvers.ipm.algorithm import make_ipm
-from jaxhumanoid.solvers.ipm.driver import batch_solve_ipm, solve_ipm
+from jaxhumanoid.solvers.ipm.driver import batch_solve_ipm, precompile_ipm, solve_ipm
 from jaxhumanoid.solvers.ipm.options import IPMOptions
 from jaxhumanoid.solvers.ipm.problem import unscale
 
-__all__ = ["IPMOptions", "batch_solve_ipm", "make_ipm", "solve_ipm", "unscale"]
+__all__ = ["IPMOptions", "batch_solve_ipm", "make_ipm", "precompile_ipm", "solve_ipm", "unscale"]

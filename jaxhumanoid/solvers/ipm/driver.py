@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import concurrent.futures
 import time
 
 import jax
@@ -83,18 +84,23 @@ def _package(nlp, out: Solution, bounds, opts, solve_time, compile_time):
     )
 
 
+def _compiled(core, args):
+    """The core compiled for ``args`` (once per argument structure and shapes)."""
+    key = jax.tree.structure(args), tuple(jnp.shape(a) for a in jax.tree.leaves(args))
+    if key not in core["compiled"]:
+        core["compiled"][key] = core["fn"].lower(*args).compile()
+    return core["compiled"][key]
+
+
 def _compile_and_run(core, args):
     """Run the compiled core on ``args`` (compiling once per argument structure and shapes).
 
     Returns (numpy outputs, solve time, compile time of this call)."""
-    key = jax.tree.structure(args), tuple(jnp.shape(a) for a in jax.tree.leaves(args))
-    compile_time = 0.0
-    if key not in core["compiled"]:
-        t0 = time.perf_counter()
-        core["compiled"][key] = core["fn"].lower(*args).compile()
-        compile_time = time.perf_counter() - t0
     t0 = time.perf_counter()
-    out = jax.block_until_ready(core["compiled"][key](*args))
+    compiled = _compiled(core, args)
+    compile_time = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    out = jax.block_until_ready(compiled(*args))
     solve_time = time.perf_counter() - t0
     return jax.tree.map(np.asarray, out), solve_time, compile_time
 
@@ -132,12 +138,12 @@ REPORT_INTERVAL_S = 0.5
 MAX_CHUNK = 100
 
 
-def _run_stepped(core, args, progress: IterationCallback):
+def _run_stepped(core, args, progress: IterationCallback, max_chunks: int | None = None):
     """``_compile_and_run`` a chunk of iterations at a time, calling ``progress(k, objective,
     inf_pr)`` for every iteration k from the history after each chunk. A chunk lasts about
     ``REPORT_INTERVAL_S``: a call costs about a millisecond besides its iterations, a tenth of an
     iteration of the humanoid's stage 2. The first call of each part compiles it; that time counts
-    as compile time."""
+    as compile time. ``max_chunks`` stops after that many chunks (``precompile_ipm``'s run)."""
     x0, xl, xu, gl, gu, p, opts = args
     compile_time, solve_time = 0.0, 0.0
 
@@ -161,7 +167,9 @@ def _run_stepped(core, args, progress: IterationCallback):
     (S, P), _ = call("start", core["start"], B, p, at_x0, Evals(f=f, g=g, grad=grad, jac=jac), opts)
     k_done, chunk = 0, 1
     progress(0, float(S.hist["obj"][0]), float(S.hist["inf_pr"][0]))
-    while not bool(S.done):
+    chunks = 0
+    while not bool(S.done) and (max_chunks is None or chunks < max_chunks):
+        chunks += 1
         S, dt = call("advance", core["advance"], P, S, opts, jnp.asarray(k_done + chunk, jnp.int32))
         k, obj, inf_pr = jax.device_get((S.k, S.hist["obj"], S.hist["inf_pr"]))
         for j in range(k_done + 1, int(k) + 1):
@@ -193,21 +201,48 @@ def solve_ipm(
     _check_shapes(nlp, x0, bounds)
     if progress is not None and not opts.keep_history:
         raise ValueError("progress: needs the IPM's history (options keep_history=True)")
-    core = _core(nlp, batched=False)
-    args = (
-        jnp.asarray(x0),
-        jnp.asarray(bounds.xl, float),
-        jnp.asarray(bounds.xu, float),
-        jnp.asarray(bounds.gl, float),
-        jnp.asarray(bounds.gu, float),
-        p,
-        as_float64(opts),
-    )
+    args = _solve_args(x0, bounds, p, opts)
+    t0 = time.perf_counter()
+    pending = nlp.cache.get(("ipm", "precompile", progress is not None))
+    if pending is not None:  # a compilation started earlier (``precompile_ipm``): wait for it
+        concurrent.futures.wait([pending])
+    waited = time.perf_counter() - t0
     if progress is None:
-        out, solve_time, compile_time = _compile_and_run(core, args)
+        out, solve_time, compile_time = _compile_and_run(_core(nlp, batched=False), args)
     else:
         out, solve_time, compile_time = _run_stepped(_stepped_core(nlp), args, progress)
-    return _package(nlp, out, bounds, opts, solve_time, compile_time)
+    return _package(nlp, out, bounds, opts, solve_time, compile_time + waited)
+
+
+def _solve_args(x0, bounds: Bounds, p, opts: IPMOptions) -> tuple:
+    """The arguments of the compiled core: (x0, xl, xu, gl, gu, p, options)."""
+    arrays = (x0, bounds.xl, bounds.xu, bounds.gl, bounds.gu)
+    return (*(jnp.asarray(a, float) for a in arrays), p, as_float64(opts))
+
+
+def precompile_ipm(
+    nlp: NLP, p, bounds: Bounds, options: IPMOptions | dict | None = None, stepped: bool = False
+) -> concurrent.futures.Future:
+    """Compile, in a background thread, the programs that ``solve_ipm(nlp, p', bounds', options=
+    options)`` compiles for a p' and bounds' shaped like ``p`` and ``bounds``, with a progress
+    callback when ``stepped`` (the stepped programs) or without (the one program). Returns a future
+    that is done when they are; a later ``solve_ipm`` of the same kind on ``nlp`` waits for it
+    (the wait counts as its compile time) and then runs at once, e.g. a dynamic stage compiled
+    while stage 1 solves. The stepped programs compile by running: one iteration from
+    ``bounds.x0``. A second call returns the first call's future."""
+    key = ("ipm", "precompile", stepped)
+    if key not in nlp.cache:
+        args = _solve_args(np.asarray(bounds.x0, float), bounds, p, make_options(options))
+        if stepped:
+            core = _stepped_core(nlp)
+            work = lambda: _run_stepped(core, args, lambda *a: None, max_chunks=1)  # noqa: E731
+        else:
+            core = _core(nlp, batched=False)
+            work = lambda: _compiled(core, args)  # noqa: E731
+        pool = concurrent.futures.ThreadPoolExecutor(1)
+        nlp.cache[key] = pool.submit(work)
+        pool.shutdown(wait=False)
+    return nlp.cache[key]
 
 
 def batch_solve_ipm(nlp: NLP, p_batch, bounds: Bounds, x0=None, options=None) -> list[NLPResult]:
