@@ -97,8 +97,9 @@ def _compile_and_run(core, args):
 
     Returns (numpy outputs, solve time, compile time of this call)."""
     t0 = time.perf_counter()
+    n_compiled = len(core["compiled"])
     compiled = _compiled(core, args)
-    compile_time = time.perf_counter() - t0
+    compile_time = time.perf_counter() - t0 if len(core["compiled"]) > n_compiled else 0.0
     t0 = time.perf_counter()
     out = jax.block_until_ready(compiled(*args))
     solve_time = time.perf_counter() - t0
@@ -202,11 +203,12 @@ def solve_ipm(
     if progress is not None and not opts.keep_history:
         raise ValueError("progress: needs the IPM's history (options keep_history=True)")
     args = _solve_args(x0, bounds, p, opts)
-    t0 = time.perf_counter()
+    waited = 0.0
     pending = nlp.cache.get(("ipm", "precompile", progress is not None))
-    if pending is not None:  # a compilation started earlier (``precompile_ipm``): wait for it
+    if pending is not None and not pending.done():  # a compilation started earlier (``precompile_ipm``)
+        t0 = time.perf_counter()
         concurrent.futures.wait([pending])
-    waited = time.perf_counter() - t0
+        waited = time.perf_counter() - t0
     if progress is None:
         out, solve_time, compile_time = _compile_and_run(_core(nlp, batched=False), args)
     else:
