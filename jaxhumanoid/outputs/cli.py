@@ -151,13 +151,6 @@ def _fields(settings: SolveSettings) -> dict:
     return {f.name: getattr(settings, f.name) for f in dataclasses.fields(settings)}
 
 
-def check_settings(kwargs: dict) -> None:
-    """The settings of a solve from the command line and a task file, checked before any work as
-    ``solve`` checks them (``strategy.solve.check_arguments``; the settings checked themselves when
-    they were made): what they reject exits with status 2."""
-    check_arguments(**kwargs)
-
-
 def force_limit_arg(text: str) -> float | str:
     """``--contact-force-limit``: MG body weights, or ``none``, which lifts a task's own limit."""
     if text.strip().lower() == NO_FORCE_LIMIT:
@@ -175,7 +168,7 @@ def cmd_solve(args) -> int:
     kwargs = solve_arguments(args)
     args.solver = kwargs["solver"]
     options = {**(kwargs.pop("options", None) or {}), **checked_options(args)}
-    check_settings(kwargs)
+    check_arguments(**kwargs)  # as solve checks them, before any work: status 2
     t0 = time.perf_counter()
     line = IterationLine(quiet=args.quiet or args.verbose)
     try:
@@ -224,7 +217,7 @@ def cmd_table2(args) -> int:
     # replace the file's
     given = {t: solve_kwargs(t) for t in tasks}
     for task, scheme in cells:
-        check_settings({**given[task], "scheme": scheme, "solver": args.solver, "N": args.N})
+        check_arguments(**{**given[task], "scheme": scheme, "solver": args.solver, "N": args.N})
     with working():
         _table2_cells(args, out=out, given=given, cells=cells, options=options, progress=progress)
     if not args.quiet:

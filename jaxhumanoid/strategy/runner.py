@@ -14,7 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from jaxhumanoid.ocp.scaling import as_jax, physical_scaling, scaled_bounds, scaled_nlp
+from jaxhumanoid.ocp.nlp import NLP, Bounds
+from jaxhumanoid.ocp.scaling import NLPScaling, as_jax, physical_scaling, scaled_bounds, scaled_nlp
 from jaxhumanoid.solvers.ipm import precompile_ipm, solve_ipm
 from jaxhumanoid.solvers.ipopt import solve_ipopt
 from jaxhumanoid.solvers.result import IterationCallback, NLPResult, constraint_violation, unscaled, unscaled_progress
@@ -51,15 +52,19 @@ class Runner:
         """The progress callback of one run of ``stage``."""
         return None if self.progress is None else functools.partial(self.progress, stage)
 
+    def _posed(self, problem: Problem) -> tuple[NLPScaling | None, NLP, Any, Bounds]:
+        """(scaling, NLP, parameters, bounds) of ``problem`` as the backends solve it: as posed, or
+        the scaled problem of ``ocp.scaling`` with its parameters (p, S)."""
+        if self.scaling == "none":
+            return None, problem.nlp, problem.p, problem.bounds
+        s = physical_scaling(problem.layout, float(problem.p.T))
+        return s, scaled_nlp(problem.nlp), (problem.p, as_jax(s)), scaled_bounds(problem.bounds, s)
+
     def precompile(self, problem: Problem, options: Mapping[str, Any]) -> None:
         """Start compiling, in background threads, what a later ``run`` of a problem shaped like
         ``problem`` with ``options`` compiles (IPOPT: the NLP's three programs; the IPM: its own),
         so that a later stage compiles while an earlier one solves; nothing for CasADi."""
-        s = None if self.scaling == "none" else physical_scaling(problem.layout, float(problem.p.T))
-        nlp, bounds = problem.nlp, problem.bounds
-        p: Any = problem.p
-        if s is not None:
-            nlp, p, bounds = scaled_nlp(nlp), (p, as_jax(s)), scaled_bounds(bounds, s)
+        _, nlp, p, bounds = self._posed(problem)
         if self.solver == "ipopt":
             nlp.precompile(bounds.x0, p)
         elif self.solver == "ipm":
@@ -71,14 +76,11 @@ class Runner:
             raise ValueError(f"solver: {self.solver!r} not in {SOLVERS}")
         options = dict(options)
         progress = self.for_stage(stage)
-        s = None if self.scaling == "none" else physical_scaling(problem.layout, float(problem.p.T))
+        s, nlp, p, bounds = self._posed(problem)
         run = progress if s is None else unscaled_progress(progress, s.obj)
         if self.solver == "casadi":
             return solve_casadi(problem, x0=x0, options=options, verbose=self.verbose, progress=run, scaling=s)
-        nlp, bounds, y0 = problem.nlp, problem.bounds, np.asarray(x0)
-        p: Any = problem.p
-        if s is not None:
-            nlp, p, bounds, y0 = scaled_nlp(nlp), (p, as_jax(s)), scaled_bounds(bounds, s), y0 * s.x
+        y0 = np.asarray(x0) if s is None else np.asarray(x0) * s.x
         if self.solver == "ipopt":
             res = solve_ipopt(nlp, p, bounds, x0=y0, options=options, verbose=self.verbose, progress=run)
         else:

@@ -239,20 +239,20 @@ def solve(
     runner = Runner(solver, verbose, progress, settings.scaling)
     relaxed_runner = runner.with_solver(settings.relaxed_solver(solver))
     dynamic = [relaxed_runner, runner] if settings.handover == "continuation" else [runner]
+    stage2 = dynamic_options(options, settings, scheme.stages == 2)
     if scheme.stages == 2:  # the dynamic stages compile while stage 1 runs
         for r in {r.solver: r for r in dynamic}.values():
-            r.precompile(final, dynamic_options(options, settings, True))
+            r.precompile(final, stage2)
     setup_final = time.perf_counter() - t0
     if scheme.stages == 1:
         x0 = final.bounds.x0
-        res = runner.run(final, x0, dynamic_options(options, settings, False), "single stage")
+        res = runner.run(final, x0, stage2, "single stage")
         return make_solution(final, res.x, [stage_stats("single stage", final, [res], setup_final, x0)], solver)
     law1 = ContactParams.relaxed() if settings.contact_stage1 is None else settings.contact_stage1
     relaxed, law_step = relaxed_stage_problem(final, law1, settings.continuation_steps)  # its law: law1 or a step on
     stats1, Z1 = stage_one(relaxed, settings, options, relaxed_runner)
     x0, Zf = stage_two_start(Z1, final)
     warm = {"t": np.linspace(0.0, T, N + 1), "q": Zf[:, final.layout.stage_slices()["q"]]}
-    stage2 = dynamic_options(options, settings, True)
     if settings.handover == "continuation":
         later = law_path(relaxed.p.contact, final.p.contact, settings.continuation_steps)[1:]
         path = [relaxed, *(with_law(final, law) for law in later)]

@@ -122,9 +122,14 @@ def reference_cases(settings: BenchSettings) -> list[Case]:
     ]
 
 
-def reference_summary(cases: list[dict[str, Any]], settings: BenchSettings) -> dict[str, Any]:
+def _readme_figures(settings: BenchSettings) -> tuple[pathlib.Path, dict[str, dict[str, Any]]]:
+    """The reference folder's README and its figures (none where it has no README)."""
     readme = pathlib.Path(settings.reference_dir) / "README.md"
-    figures = reference_figures(readme.read_text()) if readme.is_file() else {}
+    return readme, reference_figures(readme.read_text()) if readme.is_file() else {}
+
+
+def reference_summary(cases: list[dict[str, Any]], settings: BenchSettings) -> dict[str, Any]:
+    readme, figures = _readme_figures(settings)
     ratios = {}
     for c in cases:
         ref = figures.get(c["case"].split()[0])
@@ -202,8 +207,7 @@ def reference_draws_summary(cases: list[dict[str, Any]], settings: BenchSettings
     """Per task file and backend: draws solved, draws at the best optimum any backend found for
     the draw (within ``SAME_OPTIMUM_RTOL``), median and largest total iterations; and the
     independent implementation's figures for draw 0."""
-    readme = pathlib.Path(settings.reference_dir) / "README.md"
-    figures = reference_figures(readme.read_text()) if readme.is_file() else {}
+    _, figures = _readme_figures(settings)
     best: dict[tuple[str, int], float] = {}
     for c in cases:
         task = c["case"].split()[0]

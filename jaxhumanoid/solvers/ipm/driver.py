@@ -85,21 +85,21 @@ def _package(nlp, out: Solution, bounds, opts, solve_time, compile_time):
 
 
 def _compiled(core, args):
-    """The core compiled for ``args`` (once per argument structure and shapes)."""
+    """The core compiled for ``args`` (once per argument structure and shapes), and the time this
+    call spent compiling it (0 when it was compiled already)."""
     key = jax.tree.structure(args), tuple(jnp.shape(a) for a in jax.tree.leaves(args))
-    if key not in core["compiled"]:
-        core["compiled"][key] = core["fn"].lower(*args).compile()
-    return core["compiled"][key]
+    if key in core["compiled"]:
+        return core["compiled"][key], 0.0
+    t0 = time.perf_counter()
+    core["compiled"][key] = core["fn"].lower(*args).compile()
+    return core["compiled"][key], time.perf_counter() - t0
 
 
 def _compile_and_run(core, args):
     """Run the compiled core on ``args`` (compiling once per argument structure and shapes).
 
     Returns (numpy outputs, solve time, compile time of this call)."""
-    t0 = time.perf_counter()
-    n_compiled = len(core["compiled"])
-    compiled = _compiled(core, args)
-    compile_time = time.perf_counter() - t0 if len(core["compiled"]) > n_compiled else 0.0
+    compiled, compile_time = _compiled(core, args)
     t0 = time.perf_counter()
     out = jax.block_until_ready(compiled(*args))
     solve_time = time.perf_counter() - t0
