@@ -164,19 +164,20 @@ def run_record(
     argv: Sequence[str] = (),
 ) -> dict[str, Any]:
     """Run the planned suites in turn (``plan_run``): the record of the run (``stamp``: commit,
-    dirty flag and environment first)."""
+    dirty flag and environment first, as they were when the run started, which is the code that
+    ran)."""
     started = datetime.datetime.now(datetime.UTC)
+    stamped = stamp({})
     t0 = time.perf_counter()
     out = {name: run_suite(name, suites[name], cases, settings) for name, cases in planned.items()}
-    return stamp(
-        {
-            "started": started.isoformat(timespec="seconds"),
-            "wall_s": time.perf_counter() - t0,
-            "command": list(argv),
-            "settings": dataclasses.asdict(settings),
-            "suites": out,
-        }
-    )
+    return {
+        **stamped,
+        "started": started.isoformat(timespec="seconds"),
+        "wall_s": time.perf_counter() - t0,
+        "command": list(argv),
+        "settings": dataclasses.asdict(settings),
+        "suites": out,
+    }
 
 
 def markdown(record: Mapping[str, Any], suites: Mapping[str, Suite]) -> str:
