@@ -3,6 +3,7 @@
 import dataclasses
 import pathlib
 
+import jax
 import numpy as np
 import pytest
 
@@ -94,6 +95,22 @@ def test_reseating_keeps_the_foot_steady_where_the_least_motion_would_tip_it():
     assert m.ok and np.all(m.foot > 1.0) and dgap < 0.05
     forces = np.asarray(ct.normal_force(relaxed, np.asarray(kin.contact_gaps(p.model, p.foot, q_rel))[idx]))
     np.testing.assert_allclose(forces, f_nom, rtol=0.1, atol=2.0)
+
+
+def test_the_compiled_gaps_and_their_jacobian_have_the_bits_of_op_by_op_evaluation():
+    """The seating loops run the gaps and their Jacobian compiled; the postures they seat start every
+    2S solve, whose path depends on their last bits, so compiled and op-by-op must agree exactly."""
+    model, foot = PlanarChain.humanoid(), FootParams.paper()
+    rng = np.random.default_rng(0)
+    postures = [tasks.get_task(k).start for k in ("T1", "T2", "T3", "T4")]
+    postures += [tasks.get_task("T1").start + rng.normal(0.0, 0.3, model.n) for _ in range(8)]
+    jacobian = jax.jacfwd(lambda q: kin.contact_gaps(model, foot, q))
+    for q in postures:
+        assert np.array_equal(posture._gaps(model, foot, q), kin.contact_gaps(model, foot, q))
+        assert np.array_equal(posture._gaps_jacobian(model, foot, q), jacobian(q))
+    longer = dataclasses.replace(model, a=1.1 * np.asarray(model.a), c=1.1 * np.asarray(model.c))
+    for q in postures[:4]:  # another body: the same program, other arguments
+        assert np.array_equal(posture._gaps(longer, foot, q), kin.contact_gaps(longer, foot, q))
 
 
 def test_no_equilibrium_on_a_foot_too_short_is_a_clear_error():

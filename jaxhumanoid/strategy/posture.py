@@ -21,6 +21,7 @@ stage 1 (``reseat_for_contact``).
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -32,6 +33,7 @@ from jaxhumanoid.model import foot as ft
 from jaxhumanoid.model import kinematics as kin
 from jaxhumanoid.model.params import ContactParams, FootParams, PlanarChain
 from jaxhumanoid.ocp import transcription as tr
+from jaxhumanoid.ocp.nlp import COMPILER_OPTIONS
 from jaxhumanoid.ocp.tasks import Task
 
 
@@ -140,6 +142,18 @@ def margins(
     )
 
 
+@functools.partial(jax.jit, compiler_options=COMPILER_OPTIONS)
+def _gaps(model: PlanarChain, foot: FootParams, q):
+    """``kinematics.contact_gaps`` (n,) and its Jacobian (n, n) below, each one program: the
+    Gauss-Newton loops below evaluate them a few dozen times. Compiled, they give the same bits as
+    their operations evaluated one by one (tests/test_posture.py), so the seated postures, and the
+    solves that start from them, do not move."""
+    return kin.contact_gaps(model, foot, q)
+
+
+_gaps_jacobian = jax.jit(jax.jacfwd(kin.contact_gaps, argnums=2), compiler_options=COMPILER_OPTIONS)
+
+
 def _inverse_normal_force(contact: ContactParams, f):
     """y with f_n(y) = f for the law (3): y = -(f0/kappa) log2(2^(f/f0) - 1)."""
     return -(contact.f0 / contact.kappa) * np.log2(np.expm1(f * np.log(2.0) / contact.f0))
@@ -162,14 +176,14 @@ def reseat_for_contact(p: tr.OCPParams, q, active, new_contact: ContactParams, i
     """
     q = np.asarray(q, dtype=float)
     idx = np.asarray(active, dtype=int) - 1
-    gaps = np.asarray(kin.contact_gaps(p.model, p.foot, q))[idx]
+    gaps = np.asarray(_gaps(p.model, p.foot, q))[idx]
     f_nom = np.asarray(ct.normal_force(p.contact, gaps))
     q_new = seat_with_forces(p.model, p.foot, new_contact, q, active, f_nom, iters)
     rows, u1 = rest_foot_rows(p.model, p.foot, p.contact, q, active)
     rows_new, _ = rest_foot_rows(p.model, p.foot, new_contact, q_new, active)
     if np.min(rows_new) < min(0.0, float(np.min(rows))):
         q_new = seat_with_forces(p.model, p.foot, new_contact, q, active, f_nom, 4 * iters, ankle_torque=u1)
-    gaps_new = np.asarray(kin.contact_gaps(p.model, p.foot, q_new))[idx]
+    gaps_new = np.asarray(_gaps(p.model, p.foot, q_new))[idx]
     return q_new, float(np.max(np.abs(gaps_new - gaps), initial=0.0))
 
 
@@ -206,7 +220,7 @@ def seat_with_forces(
     q = np.asarray(q, dtype=float)
     forces = np.asarray(forces, dtype=float)
     rows_all = np.asarray(active, dtype=int) - 1
-    at_q = np.asarray(ct.normal_force(contact, np.asarray(kin.contact_gaps(model, foot, q))[rows_all]))
+    at_q = np.asarray(ct.normal_force(contact, np.asarray(_gaps(model, foot, q))[rows_all]))
     seated = (forces > LIGHT_CONTACT) | (at_q > LIGHT_CONTACT)
     if not np.any(seated):
         return q
@@ -214,11 +228,10 @@ def seat_with_forces(
     rows = rows_all[seated]
     if ankle_torque is not None:
         return _seat_keeping_ankle(model, foot, contact, q, active, rows, target, float(ankle_torque), iters)
-    jac = jax.jacfwd(lambda qq: kin.contact_gaps(model, foot, qq))
     q_new = q.copy()
     for _ in range(iters):
-        y = np.asarray(kin.contact_gaps(model, foot, q_new))[rows]
-        J = np.asarray(jac(jnp.asarray(q_new)))[rows]
+        y = np.asarray(_gaps(model, foot, q_new))[rows]
+        J = np.asarray(_gaps_jacobian(model, foot, jnp.asarray(q_new)))[rows]
         q_new = q_new + np.linalg.lstsq(J, target - y, rcond=None)[0]
     return q_new
 
