@@ -22,7 +22,7 @@ import numpy as np
 import jaxhumanoid  # noqa: F401
 from jaxhumanoid.strategy.problem import build_problem
 from jaxhumanoid.strategy.solve import solve
-from jaxhumanoid.studies.bench import BENCH_SETTINGS, bench_task, time_fn, write_record
+from jaxhumanoid.studies.bench import bench_task, time_fn, write_record
 from jaxhumanoid.validation.casadi_backend import build_casadi_nlp
 
 
@@ -91,7 +91,7 @@ def main():
         for task in args.tasks:
             rec = {}
             for solver in ("ipopt", "casadi"):
-                sol = solve(bench_task(task), "A,F+C,2S", solver=solver, N=args.N, settings=BENCH_SETTINGS)
+                sol = solve(bench_task(task), "A,F+C,2S", solver=solver, N=args.N)
                 rec[solver] = {
                     "success": sol.success,
                     "iterations": [s.iterations for s in sol.stages],

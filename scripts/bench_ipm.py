@@ -58,10 +58,11 @@ from jaxhumanoid.solvers.ipm import batch_solve_ipm, solve_ipm
 from jaxhumanoid.solvers.ipopt import solve_ipopt
 from jaxhumanoid.strategy.handover import STAGE2_DEFAULTS
 from jaxhumanoid.strategy.runner import Runner
+from jaxhumanoid.strategy.settings import SolveSettings
 from jaxhumanoid.strategy.solve import solve
 from jaxhumanoid.strategy.stage_one import STAGE1_DEFAULTS
 from jaxhumanoid.strategy.taskfile import load_task_file
-from jaxhumanoid.studies.bench import BENCH_SETTINGS, git_state, stage1_problem
+from jaxhumanoid.studies.bench import git_state, stage1_problem
 
 SCHEME = "A,F+C,2S"
 REPO = pathlib.Path(__file__).resolve().parents[1]
@@ -86,7 +87,7 @@ def stage2_start(name: str, ref_dir: pathlib.Path):
         return run(runner, problem, x0, options, stage)
 
     kw = solve_kwargs_of(name, ref_dir)
-    settings = (kw.get("settings") or BENCH_SETTINGS).replace(stage1_solver="ipopt", handover="direct")
+    settings = (kw.get("settings") or SolveSettings()).replace(stage1_solver="ipopt", handover="direct")
     with mock.patch.object(Runner, "run", record):
         solve(**{**kw, "solver": "ipopt", "settings": settings})
     return calls[-1]

@@ -25,7 +25,7 @@ from jaxhumanoid.ocp.scheme import parse_scheme
 from jaxhumanoid.solvers.ipopt import solve_ipopt
 from jaxhumanoid.strategy.problem import build_problem
 from jaxhumanoid.strategy.solve import solve
-from jaxhumanoid.studies.bench import BENCH_SETTINGS, bench_task, write_record
+from jaxhumanoid.studies.bench import bench_task, write_record
 
 
 def _timing(log: str, key: str) -> float:
@@ -47,7 +47,7 @@ def main():
     for task in args.tasks:
         runs = []
         for _ in range(args.runs):
-            sol = solve(bench_task(task), "A,F+C,2S", settings=BENCH_SETTINGS)
+            sol = solve(bench_task(task), "A,F+C,2S")
             runs.append(sol)
         # per-iteration cost and derivative share of the dynamic stage, from one more IPOPT run
         final = build_problem(bench_task(task), parse_scheme("A,F+C,2S"), N=100)

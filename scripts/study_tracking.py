@@ -2,14 +2,13 @@
 
     python scripts/study_tracking.py [--tasks T1 T2 T3 T4 | examples/paper/T1.toml ...] [--trials 100]
         [--seed 0] [--plans DIR] [--out docs/tracking.json] [--lqr KEY=VALUE ...]
-        [--foot-margin LOAD FRICTION COP] [--N 100] [--guess inverse_dynamics] [--contact-force-limit MG|none] [--qp-filter [LOAD FRICTION COP]] [--defects]
+        [--foot-margin LOAD FRICTION COP] [--N 100] [--contact-force-limit MG|none] [--qp-filter [LOAD FRICTION COP]] [--defects]
         [--ablation [mass length contact friction start_rad torque_noise_Nm]]
 
 The tables are copied into docs/tracking.md, which explains them.
 
 Each task (a built-in key or a task file) is solved with the defaults (A,F+C,2S, N = 100, IPOPT;
-a task file's own settings), stage 1 of a built-in task from ``--guess`` (default the inverse
-dynamics, the guess of the plans in docs/tracking.md), on ``--N`` intervals and with ``--foot-margin`` when given, into
+a task file's own settings), on ``--N`` intervals and with ``--foot-margin`` when given, into
 ``--plans``/<label> (reused when a solution is already there; the label is the key, or the task
 file's folder and stem, with the margin, the grid and ``--contact-force-limit`` appended when
 given), then ``jaxhumanoid.tracking.track`` runs ``--trials`` perturbed
@@ -48,9 +47,6 @@ from jaxhumanoid.tracking import LQRWeights, Perturbation, track
 from jaxhumanoid.tracking.filter import SafetyFilter
 from jaxhumanoid.tracking.plan import interval_defects
 
-# The first guess of the plans docs/tracking.md tracks (a task file's own guess where it has one).
-PLAN_GUESS = "inverse_dynamics"
-
 
 def label(task: str, margin, N, limit=None) -> str:
     """The row's name: the key T1..T4 or the task file's folder_stem, with the margin, the grid and
@@ -62,18 +58,15 @@ def label(task: str, margin, N, limit=None) -> str:
     return name + (f" N={N}" if N is not None else "") + (f" limit {limit}" if limit is not None else "")
 
 
-def plan(task: str, plans: pathlib.Path, margin=None, N=None, limit=None, guess=PLAN_GUESS) -> pathlib.Path:
+def plan(task: str, plans: pathlib.Path, margin=None, N=None, limit=None) -> pathlib.Path:
     out = plans / label(task, margin, N, limit).replace(" ", "_").replace("/", "-")
     if not (out / "solution.npz").is_file():
         kwargs = jh.load_task_file(task).as_solve_kwargs() if task.endswith(".toml") else {"task": task}
         if limit is not None:
             kwargs["task"] = with_force_limit(kwargs["task"], limit)
-        settings = kwargs.get("settings") or jh.SolveSettings()
-        if settings.guess is None:  # a task file's own guess stays
-            settings = settings.replace(guess=guess)
         if margin is not None:
-            settings = settings.replace(foot_margin=FootMargin(*margin))
-        kwargs["settings"] = settings
+            settings = kwargs.get("settings") or jh.SolveSettings()
+            kwargs["settings"] = settings.replace(foot_margin=FootMargin(*margin))
         if N is not None:
             kwargs["N"] = N
         sol = jh.solve(**kwargs)
@@ -192,9 +185,7 @@ def write_defects(args, rows, out: pathlib.Path) -> None:
     by_task = {r["task"]: r for r in rows}
     for task in args.tasks:
         by_task.setdefault(task, {"task": task})["defects_rad"] = defects(
-            jh.Solution.load(
-                plan(task, pathlib.Path(args.plans), args.foot_margin, args.N, args.contact_force_limit, args.guess)
-            )
+            jh.Solution.load(plan(task, pathlib.Path(args.plans), args.foot_margin, args.N, args.contact_force_limit))
         )
         print(task, by_task[task]["defects_rad"], flush=True)
     rows = sorted(by_task.values(), key=lambda r: r["task"])
@@ -239,11 +230,6 @@ def main() -> None:
     )
     parser.add_argument("--N", type=int, default=None, help="plan intervals (default the task's, 100)")
     parser.add_argument(
-        "--guess",
-        default=PLAN_GUESS,
-        help=f"first guess of a built-in task's plan (default {PLAN_GUESS}, the plans of docs/tracking.md)",
-    )
-    parser.add_argument(
         "--contact-force-limit",
         type=force_limit_arg,
         default=None,
@@ -283,7 +269,7 @@ def main() -> None:
         parser.error(f"--qp-filter: expected nothing or LOAD FRICTION COP, got {args.qp_filter}")
     safety = None if args.qp_filter is None else SafetyFilter(*args.qp_filter)
     for task in args.tasks:
-        src = plan(task, pathlib.Path(args.plans), args.foot_margin, args.N, args.contact_force_limit, args.guess)
+        src = plan(task, pathlib.Path(args.plans), args.foot_margin, args.N, args.contact_force_limit)
         name = label(task, args.foot_margin, args.N, args.contact_force_limit)
         for suffix, perturbation in perturbations(args.ablation):
             rows = run_row(args, src, name + suffix, perturbation, weights, safety, rows)

@@ -11,22 +11,14 @@ import pytest
 
 import jaxhumanoid as jh
 from jaxhumanoid.model.foot import FootMargin
-from jaxhumanoid.strategy.settings import (
-    CONTINUATION_STEPS,
-    DEFAULT_HANDOVER,
-    DEFAULT_STAGE1_SOLVER,
-    STAGE1_GUESS,
-    SolveSettings,
-)
+from jaxhumanoid.strategy.settings import CONTINUATION_STEPS, DEFAULT_HANDOVER, DEFAULT_STAGE1_SOLVER, SolveSettings
 from jaxhumanoid.strategy.solve import check_arguments
 
 
 def test_the_defaults_are_the_package_defaults():
     s = SolveSettings()
     assert s.N1 is None and s.stage1_options is None and s.stage2_options is None and s.contact_stage1 is None
-    assert s.guess is None and s.handover == DEFAULT_HANDOVER == "continuation"
-    assert s.first_guess(True) == STAGE1_GUESS == "static_path" and s.first_guess(False) == "inverse_dynamics"
-    assert s.replace(guess="linear").first_guess(True) == s.replace(guess="linear").first_guess(False) == "linear"
+    assert s.guess == "inverse_dynamics" and s.handover == DEFAULT_HANDOVER == "continuation"
     assert s.continuation_steps == CONTINUATION_STEPS and s.stage1_solver == DEFAULT_STAGE1_SOLVER == "ipopt"
     assert s.foot_margin is None and s.scaling == "none"
     assert s.stage1_grid(100) == 30 and s.stage1_grid(12) == 12 and s.replace(N1=50).stage1_grid(100) == 50
@@ -44,7 +36,7 @@ def test_the_defaults_are_the_package_defaults():
         ("stage1_options", {1: 2}, "dict of solver options"),
         ("stage2_options", "tol=1e-8", "dict of solver options"),
         ("contact_stage1", {"kappa": 1.0}, "ContactParams"),
-        ("guess", "zero", "'linear', 'inverse_dynamics', 'static_path', None"),
+        ("guess", "zero", "'linear', 'inverse_dynamics', 'static_path'"),
         ("handover", "homotopy", "'direct', 'continuation'"),
         ("continuation_steps", 0, ">= 1"),
         ("continuation_steps", 1.5, ">= 1"),

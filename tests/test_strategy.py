@@ -90,24 +90,6 @@ def test_failed_stage_one_retries_with_the_fallback_and_counts_every_run(monkeyp
     np.testing.assert_array_equal(x[6], x[4])
 
 
-def test_stage_one_starts_from_the_static_path_and_one_stage_from_the_inverse_dynamics(monkeypatch):
-    starts = []
-
-    def fake_run(runner, problem, x0, options, stage):
-        starts.append((problem, np.array(x0)))
-        return _fake_result(problem, x0)
-
-    monkeypatch.setattr(Runner, "run", fake_run)
-    solve("T1", "A,F+C,2S", N=30)  # N1 = 30, where T1 has a static path
-    stage1, x0 = starts[0]
-    assert stage1.layout.pseudo_static
-    np.testing.assert_array_equal(x0, with_guess(stage1, "static_path").bounds.x0)
-    assert np.max(np.abs(x0 - with_guess(stage1, "inverse_dynamics").bounds.x0)) > 1e-3  # T1 has a static path
-    starts.clear()
-    solve("T1", "A,F+C,1S", N=12)
-    np.testing.assert_array_equal(starts[0][1], with_guess(starts[0][0], "inverse_dynamics").bounds.x0)
-
-
 def test_stage_one_of_a_task_with_a_force_limit_falls_back_to_none_and_stage_two_keeps_it(monkeypatch):
     calls = []
 

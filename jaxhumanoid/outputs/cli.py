@@ -448,9 +448,8 @@ def _add_solve_parser(sub) -> None:
         "--guess",
         default=None,
         choices=list(GUESSES),
-        help="initial guess of the first stage: static_path (default for stage 1 of 2S; postures the body can "
-        "hold at rest, where a path of them is found), inverse_dynamics (default for 1S; torques and forces "
-        "that satisfy its dynamics) or linear",
+        help="initial guess: inverse_dynamics (default; torques and forces that satisfy its dynamics), linear, "
+        "or static_path (postures the body can hold at rest, where a path of them is found)",
     )
     p.add_argument(
         "--handover",

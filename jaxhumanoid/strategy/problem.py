@@ -205,6 +205,6 @@ def problem_from_settings(kwargs: dict, scheme: str, N: int) -> Problem:
         foot=kwargs.get("foot"),
         contact=kwargs.get("contact"),
         weights=kwargs.get("weights"),
-        guess=DEFAULT_GUESS if settings is None else settings.first_guess(False),
+        guess=DEFAULT_GUESS if settings is None else settings.guess,
         foot_margin=None if settings is None else settings.foot_margin,
     )

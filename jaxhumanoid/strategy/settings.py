@@ -30,16 +30,10 @@ HANDOVERS = ("direct", "continuation")
 # four steps (the same on 7, lower on 2, at most 3e-3 higher on 3) with a median continuation of 55
 # iterations against 79; one step reaches higher optima, up to 8 % (docs/decisions.md).
 CONTINUATION_STEPS = 2
-# The defaults of ``solve`` (docs/results.md measures the alternatives): the continuation
-# hand-over, and IPOPT for the relaxed-law stages, so that the far-start globalisation is one
-# backend's and ``solver`` decides the continuation to the nominal law, where every backend
-# reaches the same optimum.
-# Stage 1 of 2S starts from the static path (postures the body can hold at rest, where a path of
-# them is found; else the inverse-dynamics guess): over 40 perturbed problems of the robustness
-# study it solves all 40 against 39, the whole 2S takes a median of 67 fewer iterations, and its
-# optimum is lower than from the inverse-dynamics guess on more problems than it is higher
-# (docs/decisions.md). 1S keeps the inverse-dynamics guess (``problem.DEFAULT_GUESS``).
-STAGE1_GUESS = "static_path"
+# The defaults of ``solve`` (docs/results.md measures the alternatives): the inverse-dynamics
+# guess (``problem.DEFAULT_GUESS``), the continuation hand-over, and IPOPT for the relaxed-law
+# stages, so that the far-start globalisation is one backend's and ``solver`` decides the
+# continuation to the nominal law, where every backend reaches the same optimum.
 DEFAULT_HANDOVER = "continuation"
 DEFAULT_STAGE1_SOLVER = "ipopt"
 STAGE1_SOLVERS = (*SOLVERS, "same", None)
@@ -66,9 +60,8 @@ class SolveSettings:
     ``handover.relaxed_stage_problem``).
 
     ``guess``: the initial guess of the first stage (``problem.GUESSES``): ``"linear"``, the paper's
-    (Sec. II-G); ``"inverse_dynamics"``, the same motion with torques and forces that satisfy its
-    dynamics; ``"static_path"``, postures the body can hold at rest. None (default): the static
-    path for stage 1 of 2S (``STAGE1_GUESS``), the inverse dynamics for 1S (``first_guess``).
+    (Sec. II-G); ``"inverse_dynamics"`` (default), the same motion with torques and forces that
+    satisfy its dynamics; ``"static_path"``, postures the body can hold at rest.
 
     ``handover``: how 2S passes from stage 1 to stage 2 (``HANDOVERS``): ``"direct"``, the paper's,
     stage 2 solved once under the nominal law from stage 1's interpolated primal solution, or
@@ -92,7 +85,7 @@ class SolveSettings:
     stage1_options: Mapping[str, Any] | None = None
     stage2_options: Mapping[str, Any] | None = None
     contact_stage1: ContactParams | None = None
-    guess: str | None = None
+    guess: str = DEFAULT_GUESS
     handover: str = DEFAULT_HANDOVER
     continuation_steps: int = CONTINUATION_STEPS
     stage1_solver: str | None = DEFAULT_STAGE1_SOLVER
@@ -100,7 +93,7 @@ class SolveSettings:
     scaling: str = "none"
 
     def __post_init__(self) -> None:
-        for name, allowed in (("stage1_solver", STAGE1_SOLVERS), ("guess", (*GUESSES, None)), ("handover", HANDOVERS)):
+        for name, allowed in (("stage1_solver", STAGE1_SOLVERS), ("guess", GUESSES), ("handover", HANDOVERS)):
             value = getattr(self, name)
             if not isinstance(value, (str, type(None))) or value not in allowed:
                 raise ValueError(f"{name}: {value!r} not in {allowed}")
@@ -137,13 +130,6 @@ class SolveSettings:
             return cls(**d)
         except ValueError as err:
             raise ValueError(f"{where}: {err}") from err
-
-    def first_guess(self, two_stage: bool) -> str:
-        """The initial guess of the first stage: ``guess``, else ``STAGE1_GUESS`` for stage 1 of 2S
-        and ``problem.DEFAULT_GUESS`` for the single stage of 1S."""
-        if self.guess is not None:
-            return self.guess
-        return STAGE1_GUESS if two_stage else DEFAULT_GUESS
 
     def stage1_grid(self, N: int) -> int:
         """N1 of a solve on an N-interval final grid."""

@@ -233,9 +233,7 @@ def solve(
         model=model,
         contact=contact,
         foot=foot,
-        guess=settings.first_guess(False)
-        if scheme.stages == 1
-        else "linear",  # 2S: the dynamic stages start from stage 1's
+        guess=settings.guess if scheme.stages == 1 else "linear",  # 2S: the dynamic stages start from stage 1's
         foot_margin=foot_margin,
     )
     runner = Runner(solver, verbose, progress, settings.scaling)

@@ -140,10 +140,10 @@ def stage_one(
 ) -> tuple[StageStats, np.ndarray]:
     """Stage 1 of 2S for ``relaxed``, the final problem as the relaxed-law stages pose it
     (``handover.relaxed_stage_problem``): ``stage_one_problem`` on ``settings.N1`` intervals under
-    ``relaxed``'s law from ``settings.first_guess(True)``, run by ``runner`` with ``stage_one_options``, then
+    ``relaxed``'s law from ``settings.guess``, run by ``runner`` with ``stage_one_options``, then
     ``STAGE1_FALLBACKS`` in turn while a run fails. A success that needed relaxed bounds is
     announced by a warning. Returns (stats of every run, Z1 (N1 + 1, s) of the last)."""
-    task, scheme, guess = relaxed.task, relaxed.scheme, settings.first_guess(True)
+    task, scheme, guess = relaxed.task, relaxed.scheme, settings.guess
     N1, law = settings.stage1_grid(relaxed.layout.N), relaxed.p.contact
     opts = stage_one_options(options, settings)
     t0 = time.perf_counter()

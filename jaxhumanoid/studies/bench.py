@@ -29,13 +29,10 @@ from jaxhumanoid.solvers.ipopt import solve_ipopt
 from jaxhumanoid.strategy.handover import stage_two_start
 from jaxhumanoid.strategy.posture import reseat_for_contact
 from jaxhumanoid.strategy.problem import Problem, build_problem
-from jaxhumanoid.strategy.settings import STAGE1_N, SolveSettings
+from jaxhumanoid.strategy.settings import STAGE1_N
 from jaxhumanoid.strategy.stage_one import STAGE1_DEFAULTS
 
 SCHEME = "A,F+C,2S"
-# The benchmarks start stage 1 from the inverse-dynamics guess (``build_problem``'s default), so
-# that their workloads do not move with ``solve``'s default guess.
-BENCH_SETTINGS = SolveSettings(guess="inverse_dynamics")
 REPO = pathlib.Path(__file__).resolve().parents[2]
 
 
