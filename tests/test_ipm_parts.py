@@ -125,7 +125,7 @@ def test_fraction_to_the_boundary():
     assert float(a) == pytest.approx(tau * 1.0 / 4.0)
     assert float(step.frac_to_boundary(P, x, s, jnp.array([0.1, -5.0]), jnp.array([1.0]), tau)) == 1.0
     assert float(
-        step.frac_dual(jnp.array([2.0, 1.0]), jnp.array([-4.0, -0.5]), jnp.array([True, True]), tau)
+        step.smallest(step.dual_ratios(jnp.array([2.0, 1.0]), jnp.array([-4.0, -0.5]), jnp.array([True, True]), tau))
     ) == pytest.approx(tau * 0.5)
 
 

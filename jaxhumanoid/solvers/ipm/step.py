@@ -163,11 +163,6 @@ def dual_ratios(z, dz, mask, tau):
     return jnp.where(mask & (dz < 0), -tau * z / jnp.where(dz < 0, dz, -1.0), 1.0)
 
 
-def frac_dual(z, dz, mask, tau):
-    """Fraction to the boundary (15) for a vector bounded below by 0."""
-    return smallest(dual_ratios(z, dz, mask, tau))
-
-
 def clip_mult(o: IPMOptions, z, d, mask, mu):
     """Safeguard (16) of one multiplier vector: z within [mu/(kappa_sigma d), kappa_sigma mu/d]."""
     ks = o.kappa_sigma
