@@ -36,7 +36,7 @@ def test_the_defaults_are_the_package_defaults():
         ("stage1_options", {1: 2}, "dict of solver options"),
         ("stage2_options", "tol=1e-8", "dict of solver options"),
         ("contact_stage1", {"kappa": 1.0}, "ContactParams"),
-        ("guess", "zero", "'linear', 'inverse_dynamics', 'static_path'"),
+        ("guess", "zero", "'linear', 'inverse_dynamics', 'static_path', 'both'"),
         ("handover", "homotopy", "'direct', 'continuation'"),
         ("continuation_steps", 0, ">= 1"),
         ("continuation_steps", 1.5, ">= 1"),

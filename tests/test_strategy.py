@@ -348,3 +348,82 @@ def test_precompile_compiles_the_nlp_the_run_solves():
     Runner("ipopt").precompile(problem, {})
     (own,) = [v for k, v in problem.nlp.cache.items() if isinstance(k, tuple) and k[0] == "precompile"]
     own.result()
+
+
+@pytest.mark.parametrize("lower", ["inverse_dynamics", "static_path"])
+def test_stage_one_from_both_guesses_hands_over_the_lower_objective_and_counts_every_run(monkeypatch, lower):
+    calls = []
+
+    def fake_run(runner, problem, x0, options, stage):
+        calls.append((problem, np.array(x0), stage))
+        res = _fake_result(problem, x0, iterations=10 * len(calls))
+        if not problem.layout.pseudo_static:
+            return res
+        from_sp = "static path" in stage
+        return dataclasses.replace(res, objective=1.0 if from_sp == (lower == "static_path") else 2.0)
+
+    monkeypatch.setattr(Runner, "run", fake_run)
+    both = SolveSettings(N1=10, guess="both", handover="direct")
+    sol = solve("T3", "A,F+C,2S", N=20, settings=both)
+    (id_run, id_x0, _), (sp_run, sp_x0, sp_name), (final, x2, _) = calls
+    assert sp_name == "stage 1 (pseudo-static) from the static path guess"
+    np.testing.assert_array_equal(id_x0, with_guess(id_run, "inverse_dynamics").bounds.x0)
+    np.testing.assert_array_equal(sp_x0, with_guess(id_run, "static_path").bounds.x0)
+    assert np.max(np.abs(sp_x0 - id_x0)) > 1e-3  # T3 has a static path on this grid
+    first = sol.stages[0]
+    assert first.guess == lower and first.objective == 1.0 and first.success
+    assert first.attempts == 2 and first.runs == (10, 20) and first.iterations == 30
+    # stage 2 starts from the chosen run's solution (the fake solves return their start)
+    chosen = sp_x0 if lower == "static_path" else id_x0
+    np.testing.assert_array_equal(x2, handover.stage_two_start(id_run.full(chosen), final)[0])
+
+
+def test_stage_one_from_both_guesses_prefers_a_success_and_skips_a_second_run_from_the_same_start(monkeypatch):
+    calls = []
+
+    def fake_run(runner, problem, x0, options, stage):
+        calls.append(stage)
+        fail = stage == "stage 1 (pseudo-static)"  # the first run from the inverse dynamics, lower objective
+        res = _fake_result(problem, x0, "Infeasible_Problem_Detected" if fail else "Solve_Succeeded", 5)
+        return dataclasses.replace(res, objective=0.5 if fail else 3.0)
+
+    monkeypatch.setattr(Runner, "run", fake_run)
+    both = SolveSettings(N1=10, guess="both", handover="direct")
+    sol = solve("T3", "A,F+C,2S", N=20, settings=both)
+    # the inverse-dynamics start's fallback succeeds at 3.0, the static path's first run too: a tie keeps the first
+    assert calls[:3] == ["stage 1 (pseudo-static)", "stage 1 (pseudo-static), attempt 2", calls[2]]
+    assert sol.stages[0].guess == "inverse_dynamics" and sol.stages[0].attempts == 3 and sol.stages[0].success
+    # T4 has no static path on this grid: its guess is the inverse-dynamics one, and stage 1 runs once
+    calls.clear()
+    monkeypatch.setattr(Runner, "run", lambda *a: _fake_result(a[1], a[2]))
+    sol = solve("T4", "A,F+C,2S", N=20, settings=both)
+    assert sol.stages[0].attempts == 1 and sol.stages[0].guess == "inverse_dynamics"
+
+
+def test_better_stage_one_run_is_the_successful_one_then_the_lower_objective():
+    problem = build_problem("T1", "A,F+C,2S", N=5, pseudo_static=True, guess="linear")
+
+    def runs(status, objective):
+        res = dataclasses.replace(_fake_result(problem, problem.bounds.x0, status), objective=objective)
+        return stage_one._Runs("linear", problem, (res,), stage_one.Fallback({}))
+
+    ok, low, failed = runs("Solve_Succeeded", 2.0), runs("Solve_Succeeded", 1.0), runs("Error", 0.5)
+    assert stage_one._better(ok, low) is low and stage_one._better(low, ok) is low
+    assert stage_one._better(failed, ok) is ok and stage_one._better(ok, failed) is ok
+    same = runs("Solve_Succeeded", 2.0)
+    assert stage_one._better(ok, same) is ok
+
+
+def test_stage_one_from_both_guesses_is_the_run_of_lower_objective_of_the_two_alone():
+    final = build_problem("T3", "A,F+C,2S", N=20, guess="linear")
+    relaxed, _ = handover.relaxed_stage_problem(final, ContactParams.relaxed(), 2)
+    alone = {}
+    for guess in ("inverse_dynamics", "static_path"):
+        alone[guess] = stage_one.stage_one(relaxed, SolveSettings(N1=10, guess=guess), None, Runner("ipopt"))
+    stats, Z1 = stage_one.stage_one(relaxed, SolveSettings(N1=10, guess="both"), None, Runner("ipopt"))
+    assert all(s.success for s, _ in alone.values()) and stats.success
+    assert alone["inverse_dynamics"][0].objective != alone["static_path"][0].objective
+    lower = min(alone, key=lambda g: alone[g][0].objective)
+    assert stats.guess == lower and stats.objective == alone[lower][0].objective
+    np.testing.assert_array_equal(Z1, alone[lower][1])
+    assert stats.iterations == sum(s.iterations for s, _ in alone.values())

@@ -79,7 +79,7 @@ def test_every_recorded_case_is_a_case_its_spec_draws_here(record, spec):
     assert all((ids[r["id"]].task, ids[r["id"]].draw) == (r["task"], r["draw"]) for r in rows)
 
 
-@pytest.mark.parametrize("key, value", [("scaling", "physical"), ("guess", "static_path")])
+@pytest.mark.parametrize("key, value", [("scaling", "physical"), ("guess", "static_path"), ("guess", "both")])
 def test_a_spec_setting_reaches_the_solve_and_an_unset_one_keeps_the_ids(key, value):
     (a, _) = parse_spec(TINY).cases
     (scaled, _) = parse_spec({**TINY, key: value}).cases

@@ -31,7 +31,7 @@ from jaxhumanoid.progress import IterationLine, Progress
 from jaxhumanoid.runtime import enable_compilation_cache, writable_dir
 from jaxhumanoid.solvers import ipopt_capi
 from jaxhumanoid.strategy.posture import find_equilibrium
-from jaxhumanoid.strategy.problem import GUESSES, Problem, problem_from_settings, stage_problem
+from jaxhumanoid.strategy.problem import STRATEGY_GUESSES, Problem, problem_from_settings, stage_problem
 from jaxhumanoid.strategy.settings import HANDOVERS, SolveSettings
 from jaxhumanoid.strategy.solution import Solution
 from jaxhumanoid.strategy.solve import check_arguments, solve
@@ -447,9 +447,10 @@ def _add_solve_parser(sub) -> None:
     p.add_argument(
         "--guess",
         default=None,
-        choices=list(GUESSES),
+        choices=list(STRATEGY_GUESSES),
         help="initial guess: inverse_dynamics (default; torques and forces that satisfy its dynamics), linear, "
-        "or static_path (postures the body can hold at rest, where a path of them is found)",
+        "static_path (postures the body can hold at rest, where a path of them is found), or both (2S: stage 1 "
+        "from inverse_dynamics and from static_path, the lower objective handed over)",
     )
     p.add_argument(
         "--handover",

@@ -21,6 +21,18 @@ GUESSES = ("linear", "inverse_dynamics", "static_path")
 # The default guess: with u and f from the inverse dynamics, stage 1 and coarse 1S solves of the
 # strength-limited tasks converge where the linear guess ends infeasible (docs/results.md).
 DEFAULT_GUESS = "inverse_dynamics"
+# What a strategy's first stage may start from: one of ``GUESSES``, or ``BOTH``, stage 1 of 2S run
+# from each of ``BOTH_GUESSES`` and the solution of lower objective handed over
+# (``stage_one.stage_one``); an NLP posed on its own takes the first of them.
+BOTH = "both"
+BOTH_GUESSES = ("inverse_dynamics", "static_path")
+STRATEGY_GUESSES = (*GUESSES, BOTH)
+
+
+def nlp_guess(guess: str) -> str:
+    """The initial guess (``GUESSES``) of an NLP posed on its own for a strategy's ``guess``
+    (``STRATEGY_GUESSES``)."""
+    return BOTH_GUESSES[0] if guess == BOTH else guess
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -193,7 +205,7 @@ def stage_problem(
 def problem_from_settings(kwargs: dict, scheme: str, N: int) -> Problem:
     """The problem of a task's ``solve`` keyword arguments (a task file's ``as_solve_kwargs``, a
     study case's) on ``scheme`` and ``N`` intervals: their task, body, laws, weights, horizon, and
-    their ``settings``' initial guess and foot margin (the solver settings are not part of the
+    their ``settings``' initial guess (``nlp_guess``) and foot margin (the solver settings are not part of the
     problem)."""
     settings = kwargs.get("settings")  # a SolveSettings or None (the defaults)
     return build_problem(
@@ -205,6 +217,6 @@ def problem_from_settings(kwargs: dict, scheme: str, N: int) -> Problem:
         foot=kwargs.get("foot"),
         contact=kwargs.get("contact"),
         weights=kwargs.get("weights"),
-        guess=DEFAULT_GUESS if settings is None else settings.guess,
+        guess=DEFAULT_GUESS if settings is None else nlp_guess(settings.guess),
         foot_margin=None if settings is None else settings.foot_margin,
     )

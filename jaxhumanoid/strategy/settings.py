@@ -20,7 +20,7 @@ import numpy as np
 from jaxhumanoid.model.foot import FootMargin
 from jaxhumanoid.model.params import ContactParams
 from jaxhumanoid.ocp.scaling import check_scaling
-from jaxhumanoid.strategy.problem import DEFAULT_GUESS, GUESSES
+from jaxhumanoid.strategy.problem import DEFAULT_GUESS, STRATEGY_GUESSES
 
 SOLVERS = ("ipopt", "ipm", "casadi")
 # Stage 1's grid when ``N1`` is not given: min(STAGE1_N, N), never finer than the final grid.
@@ -59,9 +59,11 @@ class SolveSettings:
     ``ContactParams.relaxed()``; a step towards the dynamic law where it cannot seat the start,
     ``handover.relaxed_stage_problem``).
 
-    ``guess``: the initial guess of the first stage (``problem.GUESSES``): ``"linear"``, the paper's
-    (Sec. II-G); ``"inverse_dynamics"`` (default), the same motion with torques and forces that
-    satisfy its dynamics; ``"static_path"``, postures the body can hold at rest.
+    ``guess``: the initial guess of the first stage (``problem.STRATEGY_GUESSES``): ``"linear"``, the
+    paper's (Sec. II-G); ``"inverse_dynamics"`` (default), the same motion with torques and forces
+    that satisfy its dynamics; ``"static_path"``, postures the body can hold at rest; ``"both"``,
+    stage 1 of 2S from each of the last two, the solution of lower objective handed over
+    (``stage_one.stage_one``; 1S starts from the inverse-dynamics guess).
 
     ``handover``: how 2S passes from stage 1 to stage 2 (``HANDOVERS``): ``"direct"``, the paper's,
     stage 2 solved once under the nominal law from stage 1's interpolated primal solution, or
@@ -93,7 +95,7 @@ class SolveSettings:
     scaling: str = "none"
 
     def __post_init__(self) -> None:
-        for name, allowed in (("stage1_solver", STAGE1_SOLVERS), ("guess", GUESSES), ("handover", HANDOVERS)):
+        for name, allowed in (("stage1_solver", STAGE1_SOLVERS), ("guess", STRATEGY_GUESSES), ("handover", HANDOVERS)):
             value = getattr(self, name)
             if not isinstance(value, (str, type(None))) or value not in allowed:
                 raise ValueError(f"{name}: {value!r} not in {allowed}")

@@ -54,6 +54,7 @@ class StageStats:
     force_limit_lifted: bool = False  # stage 1 solved only without the task's contact-force limit
     strength_factor: float = 1.0  # stage 1 solved only with its torque box (STAGE1_STRENGTH u_max) scaled by this
     law_step: int = 0  # stage 1's law: step j of the path from the relaxed to the nominal law
+    guess: str = ""  # stage 1: the initial guess of the run handed over ("" for the other stages)
 
 
 @dataclasses.dataclass

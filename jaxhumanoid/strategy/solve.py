@@ -37,7 +37,7 @@ from jaxhumanoid.strategy.handover import (
     with_law,
 )
 from jaxhumanoid.strategy.posture import check_start_margin, find_equilibrium, margins
-from jaxhumanoid.strategy.problem import Problem, build_problem
+from jaxhumanoid.strategy.problem import Problem, build_problem, nlp_guess
 from jaxhumanoid.strategy.runner import Runner, StageProgress, stage_stats
 from jaxhumanoid.strategy.settings import SOLVERS, SolveSettings, is_count
 from jaxhumanoid.strategy.solution import Solution
@@ -233,7 +233,8 @@ def solve(
         model=model,
         contact=contact,
         foot=foot,
-        guess=settings.guess if scheme.stages == 1 else "linear",  # 2S: the dynamic stages start from stage 1's
+        # 2S: the dynamic stages start from stage 1's solution
+        guess=nlp_guess(settings.guess) if scheme.stages == 1 else "linear",
         foot_margin=foot_margin,
     )
     runner = Runner(solver, verbose, progress, settings.scaling)

@@ -4,6 +4,7 @@ relaxed contact law, and the fallbacks that rerun it when a run fails."""
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 import warnings
 from collections.abc import Mapping
@@ -13,8 +14,9 @@ import numpy as np
 
 from jaxhumanoid.model.params import ContactParams
 from jaxhumanoid.ocp.tasks import NO_FORCE_LIMIT, Task, with_force_limit
+from jaxhumanoid.solvers.result import NLPResult
 from jaxhumanoid.strategy.handover import with_law
-from jaxhumanoid.strategy.problem import GUESSES, Problem, build_problem, with_guess
+from jaxhumanoid.strategy.problem import BOTH, BOTH_GUESSES, GUESSES, Problem, build_problem, with_guess
 from jaxhumanoid.strategy.runner import ADAPTIVE, Runner, stage_stats
 from jaxhumanoid.strategy.settings import SolveSettings
 from jaxhumanoid.strategy.solution import StageStats
@@ -135,20 +137,25 @@ def stage_one_problem(
     )
 
 
-def stage_one(
-    relaxed: Problem, settings: SolveSettings, options: Mapping[str, Any] | None, runner: Runner
-) -> tuple[StageStats, np.ndarray]:
-    """Stage 1 of 2S for ``relaxed``, the final problem as the relaxed-law stages pose it
-    (``handover.relaxed_stage_problem``): ``stage_one_problem`` on ``settings.N1`` intervals under
-    ``relaxed``'s law from ``settings.guess``, run by ``runner`` with ``stage_one_options``, then
-    ``STAGE1_FALLBACKS`` in turn while a run fails. A success that needed relaxed bounds is
-    announced by a warning. Returns (stats of every run, Z1 (N1 + 1, s) of the last)."""
-    task, scheme, guess = relaxed.task, relaxed.scheme, settings.guess
-    N1, law = settings.stage1_grid(relaxed.layout.N), relaxed.p.contact
-    opts = stage_one_options(options, settings)
-    t0 = time.perf_counter()
-    first = stage_one_problem(task, scheme, relaxed, N1, law, guess)
-    setup_first = time.perf_counter() - t0
+@dataclasses.dataclass(frozen=True)
+class _Runs:
+    """The runs of stage 1 from one guess: the problem of its first run, every run in order, and
+    the fallback that produced the last one (``Fallback({})``: the first run)."""
+
+    guess: str
+    first: Problem
+    attempts: tuple[NLPResult, ...]
+    last: Fallback
+
+    @property
+    def result(self) -> NLPResult:
+        return self.attempts[-1]
+
+
+def _runs_from(first: Problem, guess: str, relaxed: Problem, N1: int, opts: dict, runner: Runner, name: str) -> _Runs:
+    """Stage 1 from ``first`` (its problem from ``guess``), then ``STAGE1_FALLBACKS`` in turn while
+    a run fails; runs are reported as ``name``."""
+    task, scheme, law = relaxed.task, relaxed.scheme, relaxed.p.contact
     starts = {(False, 1.0, False): first}  # (lift_force_limit, strength, other_guess) -> the problem a run starts
 
     def start(lift: bool, strength: float, other: bool) -> Problem:
@@ -162,8 +169,8 @@ def stage_one(
                 starts[lift, strength, other] = problem
         return starts[lift, strength, other]
 
-    attempts = [runner.run(first, first.bounds.x0, opts, STAGE1_NAME)]
-    last = Fallback({})  # the run that produced attempts[-1]: the first, which relaxes nothing
+    attempts = [runner.run(first, first.bounds.x0, opts, name)]
+    last = Fallback({})
     for fb in STAGE1_FALLBACKS:
         if attempts[-1].success:
             break
@@ -171,19 +178,68 @@ def stage_one(
         if fb.lift_force_limit and not relaxations:
             continue  # the task has no limit: the same problem as an earlier run
         problem = start(fb.lift_force_limit, fb.strength, False)
-        label = f"{STAGE1_NAME}, attempt {len(attempts) + 1}" + (
-            " with " + ", ".join(relaxations) if relaxations else ""
-        )
+        label = f"{name}, attempt {len(attempts) + 1}" + (" with " + ", ".join(relaxations) if relaxations else "")
         x0 = restart_point(start(fb.lift_force_limit, fb.strength, fb.other_guess), fb.seed)
         attempts.append(runner.run(problem, x0, {**opts, **fb.options}, label))
         last = fb
-    stats = stage_stats(STAGE1_NAME, first, attempts, setup_first, first.bounds.x0)
-    relaxations = last.relaxations(task)
-    if attempts[-1].success and relaxations:
-        stats = dataclasses.replace(stats, force_limit_lifted=last.lifts_limit(task), strength_factor=last.strength)
+    return _Runs(guess, first, tuple(attempts), last)
+
+
+def _better(a: _Runs, b: _Runs) -> _Runs:
+    """The runs whose last one hands over: the successful one, else the lower objective (``a`` on
+    a tie)."""
+    ka = (not a.result.success, float(a.result.objective))
+    kb = (not b.result.success, float(b.result.objective))
+    return b if kb < ka else a
+
+
+def stage_one(
+    relaxed: Problem, settings: SolveSettings, options: Mapping[str, Any] | None, runner: Runner
+) -> tuple[StageStats, np.ndarray]:
+    """Stage 1 of 2S for ``relaxed``, the final problem as the relaxed-law stages pose it
+    (``handover.relaxed_stage_problem``): ``stage_one_problem`` on ``settings.N1`` intervals under
+    ``relaxed``'s law from ``settings.guess``, run by ``runner`` with ``stage_one_options``, then
+    ``STAGE1_FALLBACKS`` in turn while a run fails. With ``settings.guess == "both"`` this runs
+    from each of ``BOTH_GUESSES`` (the second skipped where its start is the first's, as where no
+    static path is found) and hands over the solution of lower objective, the successful one where
+    one fails: the two guesses end in different stage-1 optima, and the lower one leads the
+    dynamic stages to lower optima in fewer iterations (docs/decisions.md). A success that needed
+    relaxed bounds is announced by a warning. Returns (stats of every run, of every guess, with the
+    handed-over run's status and objective; Z1 (N1 + 1, s) of that run)."""
+    task, N1 = relaxed.task, settings.stage1_grid(relaxed.layout.N)
+    guesses = BOTH_GUESSES if settings.guess == BOTH else (settings.guess,)
+    opts = stage_one_options(options, settings)
+    t0 = time.perf_counter()
+    first = stage_one_problem(task, relaxed.scheme, relaxed, N1, relaxed.p.contact, guesses[0])
+    setup = time.perf_counter() - t0
+    runs = [_runs_from(first, guesses[0], relaxed, N1, opts, runner, STAGE1_NAME)]
+    for guess in guesses[1:]:
+        t0 = time.perf_counter()
+        other = with_guess(first, guess)
+        setup += time.perf_counter() - t0
+        if not np.array_equal(other.bounds.x0, first.bounds.x0):
+            name = f"{STAGE1_NAME} from the {guess.replace('_', ' ')} guess"
+            runs.append(_runs_from(other, guess, relaxed, N1, opts, runner, name))
+    chosen = functools.reduce(_better, runs)
+    every = [a for r in runs for a in r.attempts]
+    stats = stage_stats(STAGE1_NAME, chosen.first, every, setup, chosen.first.bounds.x0)
+    res = chosen.result
+    stats = dataclasses.replace(
+        stats,
+        status=res.status,
+        success=bool(res.success),
+        objective=float(res.objective),
+        max_constraint_violation=float(res.max_constraint_violation),
+        guess=chosen.guess,
+    )
+    relaxations = chosen.last.relaxations(task)
+    if res.success and relaxations:
+        stats = dataclasses.replace(
+            stats, force_limit_lifted=chosen.last.lifts_limit(task), strength_factor=chosen.last.strength
+        )
         warnings.warn(
             f"task {task.key}: stage 1 failed under its bounds and was solved with "
             f"{', '.join(relaxations)}; the dynamic stages keep the task's bounds",
             stacklevel=3,
         )
-    return stats, first.full(attempts[-1].x)
+    return stats, chosen.first.full(res.x)

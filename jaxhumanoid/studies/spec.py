@@ -9,7 +9,7 @@
     T = [5.0]                             # default: the task file's, else 5
     N1 = [10]                             # stage-1 intervals of 2S (default min(30, N))
     scaling = "physical"                  # the NLPs' units (``ocp.scaling.SCALINGS``; default the task's)
-    guess = "static_path"                 # the first stage's initial guess (``GUESSES``; default the task's)
+    guess = "static_path"                 # the first stage's initial guess (``STRATEGY_GUESSES``; default the task's)
     contact_force_limit = 2.0             # cap on every body contact's normal force (M g, or "none";
                                           # default the task's)
     save = true                           # write each solution to DIR/cases/<id>/ (default true)
@@ -58,7 +58,7 @@ from jaxhumanoid.ocp.scaling import SCALINGS
 from jaxhumanoid.ocp.scheme import parse_scheme
 from jaxhumanoid.ocp.tasks import NO_FORCE_LIMIT, TASKS, get_task
 from jaxhumanoid.runtime import read_toml
-from jaxhumanoid.strategy.problem import GUESSES
+from jaxhumanoid.strategy.problem import STRATEGY_GUESSES
 from jaxhumanoid.strategy.settings import SOLVERS
 from jaxhumanoid.strategy.taskfile import load_task_file
 
@@ -332,8 +332,8 @@ def _solve_cases(data: Mapping, base: pathlib.Path) -> tuple[list[Case], tuple[s
     if scaling is not None and scaling not in SCALINGS:
         raise ValueError(f"scaling: expected one of {SCALINGS}, got {scaling!r}")
     guess = data.get("guess")
-    if guess is not None and guess not in GUESSES:
-        raise ValueError(f"guess: expected one of {GUESSES}, got {guess!r}")
+    if guess is not None and guess not in STRATEGY_GUESSES:
+        raise ValueError(f"guess: expected one of {STRATEGY_GUESSES}, got {guess!r}")
     cap = data.get("contact_force_limit")
     if cap is not None and cap != NO_FORCE_LIMIT:
         try:
