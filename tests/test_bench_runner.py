@@ -92,6 +92,7 @@ def test_a_suite_that_does_not_repeat_runs_once():
         ({"backends": ("snopt",)}, "--backends"),
         ({"draws": 0}, "--draws"),
         ({"workers": 0}, "--workers"),
+        ({"guess": "zero"}, "--guess"),
     ],
 )
 def test_settings_are_checked(kwargs, field):
@@ -192,3 +193,14 @@ def test_reference_draws_summary_counts_the_best_optimum():
     assert s["T1 ipopt"]["reference_objective"] is None
     table = suites.reference_draws_table({"summary": suites.reference_draws_summary(cases, settings)})
     assert "| T1 | ipm | 3 of 3 | 2 of 3 | 30 (30) | 10, 101 | - |" in table
+
+
+def test_the_runs_guess_reaches_the_robustness_cases_and_the_builtin_solves():
+    from jaxhumanoid.studies import suites
+
+    plain = suites.robustness_spec(BenchSettings(backends=("ipopt",), draws=1))
+    both = suites.robustness_spec(BenchSettings(backends=("ipopt",), draws=1, guess="both"))
+    assert [c.guess for c in plain.cases] == [None] * 4 and [c.guess for c in both.cases] == ["both"] * 4
+    assert [c.draw for c in both.cases] == [c.draw for c in plain.cases]
+    assert suites._builtin(BenchSettings(N=20)) == {"N": 20}
+    assert suites._builtin(BenchSettings(guess="static_path"))["settings"].guess == "static_path"

@@ -7,6 +7,7 @@ import sys
 
 from jaxhumanoid.outputs.exits import working
 from jaxhumanoid.runtime import writable_dir
+from jaxhumanoid.strategy.problem import STRATEGY_GUESSES
 from jaxhumanoid.studies.runner import (
     BACKENDS,
     DEFAULT_REFERENCE_DIR,
@@ -30,6 +31,7 @@ def cmd_bench(args) -> int:
         spec=args.spec,
         draws=args.draws,
         workers=args.workers,
+        guess=args.guess,
         work_dir=f"{args.out}/work",
         quiet=args.quiet,
     )
@@ -70,6 +72,12 @@ def add_bench_parser(sub) -> None:
         help="robustness: the first K draws per task; reference-draws: K draws per file (default 6)",
     )
     p.add_argument("--workers", type=int, default=1, help="robustness suite: worker processes")
+    p.add_argument(
+        "--guess",
+        default=None,
+        choices=list(STRATEGY_GUESSES),
+        help="table2, agreement and robustness suites: the first stage's initial guess (default solve's, the spec's)",
+    )
     p.add_argument("--out", default="bench", help="folder of the records (default bench/)")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=cmd_bench)

@@ -26,6 +26,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from jaxhumanoid.progress import Progress, format_duration
+from jaxhumanoid.strategy.problem import STRATEGY_GUESSES
 from jaxhumanoid.studies.bench import stamp
 
 DEFAULT_REFERENCE_DIR = "../shared/reference_posing"
@@ -39,8 +40,9 @@ class BenchSettings:
 
     ``N``: the grid of every solve (None: each suite's own, the tasks' N = 100); ``draws``: the
     robustness study's first K draws per task (None: all), the reference-draws suite's draws per
-    file (None: its default); ``work_dir``: where suites that write
-    files (a sweep, an external script's record) put them."""
+    file (None: its default); ``guess``: the first stage's initial guess of the built-in tasks'
+    solves and of the robustness study (``STRATEGY_GUESSES``; None: ``solve``'s and the spec's);
+    ``work_dir``: where suites that write files (a sweep, an external script's record) put them."""
 
     repeats: int = 3
     tasks: tuple[str, ...] = TASKS
@@ -50,6 +52,7 @@ class BenchSettings:
     spec: str = "examples/studies/robustness.toml"
     draws: int | None = None
     workers: int = 1
+    guess: str | None = None
     work_dir: str = "bench/work"
     quiet: bool = False
 
@@ -60,6 +63,8 @@ class BenchSettings:
             raise ValueError(f"--N: expected an integer number of intervals >= 3, got {self.N!r}")
         if self.draws is not None and self.draws < 1:
             raise ValueError(f"--draws: expected an integer >= 1, got {self.draws!r}")
+        if self.guess is not None and self.guess not in STRATEGY_GUESSES:
+            raise ValueError(f"--guess: expected one of {', '.join(STRATEGY_GUESSES)}, got {self.guess!r}")
         if self.workers < 1:
             raise ValueError(f"--workers: expected an integer >= 1, got {self.workers!r}")
         unknown = sorted(set(self.backends) - set(BACKENDS))

@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from jaxhumanoid.strategy.settings import SolveSettings
 from jaxhumanoid.strategy.solution import Solution
 from jaxhumanoid.strategy.solve import solve
 from jaxhumanoid.strategy.taskfile import solve_kwargs
@@ -67,6 +68,11 @@ def _solve_case(name: str, kwargs: Mapping[str, Any]) -> Case:
 
 def _grid(settings: BenchSettings) -> dict[str, int]:
     return {} if settings.N is None else {"N": settings.N}
+
+
+def _builtin(settings: BenchSettings) -> dict[str, Any]:
+    """``solve``'s keywords of a built-in task's solve: the run's grid and initial guess."""
+    return _grid(settings) | ({} if settings.guess is None else {"settings": SolveSettings(guess=settings.guess)})
 
 
 def _its(values: Mapping[str, Any]) -> str:
@@ -270,7 +276,7 @@ def _table2_backends(settings: BenchSettings) -> list[str]:
 
 def table2_cases(settings: BenchSettings) -> list[Case]:
     return [
-        _solve_case(f"{t} {s} {b}", {"task": t, "scheme": s, "solver": b, **_grid(settings)})
+        _solve_case(f"{t} {s} {b}", {"task": t, "scheme": s, "solver": b, **_builtin(settings)})
         for t in settings.tasks
         for b in _table2_backends(settings)
         for s in (SCHEME_2S, SCHEME_1S)
@@ -313,7 +319,7 @@ def _agreement_run(task: str, settings: BenchSettings) -> Measurement:
     times: dict[str, float] = {}
     outcomes = {}
     for b in settings.backends:
-        m, sol = measured_solve({"task": task, "scheme": SCHEME_2S, "solver": b, **_grid(settings)})
+        m, sol = measured_solve({"task": task, "scheme": SCHEME_2S, "solver": b, **_builtin(settings)})
         values[b] = {k: m.values[k] for k in ("status", "success", "iterations", "objective")}
         times[f"{b}_solve_s"] = m.times["solve_s"]
         outcomes[b] = Outcome(bool(sol.success), float(sol.objective), np.asarray(sol.q))
@@ -359,9 +365,14 @@ def robustness_cases(settings: BenchSettings) -> list[Case]:
 
 
 def robustness_spec(settings: BenchSettings) -> Spec:
-    """The study's cases on the run's tasks, backends and first ``draws`` draws."""
+    """The study's cases on the run's tasks, backends and first ``draws`` draws, with the run's
+    ``guess`` where it sets one."""
     spec = select_cases(load_spec(settings.spec), list(settings.backends), settings.draws)
-    cases = tuple(c for c in spec.cases if c.task in settings.tasks)
+    cases = tuple(
+        c if settings.guess is None else dataclasses.replace(c, guess=settings.guess)
+        for c in spec.cases
+        if c.task in settings.tasks
+    )
     if not cases:
         raise ValueError(f"--tasks: none of {list(settings.tasks)} in the study {settings.spec!r}")
     return dataclasses.replace(spec, cases=cases)
