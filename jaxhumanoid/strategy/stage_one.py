@@ -3,6 +3,7 @@ relaxed contact law, and the fallbacks that rerun it when a run fails."""
 
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
 import functools
 import time
@@ -213,11 +214,15 @@ def stage_one(
     t0 = time.perf_counter()
     first = stage_one_problem(task, relaxed.scheme, relaxed, N1, relaxed.p.contact, guesses[0])
     setup = time.perf_counter() - t0
-    runs = [_runs_from(first, guesses[0], relaxed, N1, opts, runner, STAGE1_NAME)]
-    for guess in guesses[1:]:
+    # The other guesses are made in a background thread while the first one's runs solve: the
+    # static path compiles its own programs and runs its sweeps, which would otherwise wait.
+    with concurrent.futures.ThreadPoolExecutor(1) as pool:
+        others = [(g, pool.submit(with_guess, first, g)) for g in guesses[1:]]
+        runs = [_runs_from(first, guesses[0], relaxed, N1, opts, runner, STAGE1_NAME)]
         t0 = time.perf_counter()
-        other = with_guess(first, guess)
-        setup += time.perf_counter() - t0
+        others_made = [(g, future.result()) for g, future in others]
+        setup += time.perf_counter() - t0  # the wait for them, where the first runs were quicker
+    for guess, other in others_made:
         if not np.array_equal(other.bounds.x0, first.bounds.x0):
             name = f"{STAGE1_NAME} from the {guess.replace('_', ' ')} guess"
             runs.append(_runs_from(other, guess, relaxed, N1, opts, runner, name))
