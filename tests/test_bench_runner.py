@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from jaxhumanoid.outputs.cli import main
+from jaxhumanoid.strategy.settings import SolveSettings
 from jaxhumanoid.studies import runner, suites
 from jaxhumanoid.studies.runner import BenchSettings, Case, Measurement, Suite
 
@@ -112,6 +113,8 @@ def test_bad_input_exits_2_before_any_work(capsys, tmp_path, monkeypatch):
         (["--suite", "reference", "--reference-dir", str(tmp_path / "none")], "--reference-dir"),
         (["--suite", "robustness", "--spec", str(tmp_path / "none.toml")], "none.toml"),
         (["--suite", "robustness", "--draws", "0"], "--draws"),
+        (["--stage1-option", "mu_init=abc"], "--stage1-option"),
+        (["--stage1-option", "mu_init"], "--stage1-option"),
     ]:
         assert main(["--no-cache", "bench", *argv, "--out", str(out)]) == 2, argv
         err = capsys.readouterr().err.strip().splitlines()
@@ -204,3 +207,5 @@ def test_the_runs_guess_reaches_the_robustness_cases_and_the_builtin_solves():
     assert [c.draw for c in both.cases] == [c.draw for c in plain.cases]
     assert suites._builtin(BenchSettings(N=20)) == {"N": 20}
     assert suites._builtin(BenchSettings(guess="static_path"))["settings"].guess == "static_path"
+    s = suites._builtin(BenchSettings(stage1_options={"mu_init": 1e-3}))["settings"]
+    assert dict(s.stage1_options) == {"mu_init": 1e-3} and s.guess == SolveSettings().guess

@@ -7,6 +7,7 @@ import sys
 
 from jaxhumanoid.outputs.exits import working
 from jaxhumanoid.runtime import writable_dir
+from jaxhumanoid.solvers import ipopt_capi
 from jaxhumanoid.strategy.problem import STRATEGY_GUESSES
 from jaxhumanoid.studies.runner import (
     BACKENDS,
@@ -18,6 +19,21 @@ from jaxhumanoid.studies.runner import (
     write_run,
 )
 from jaxhumanoid.studies.suites import DEFAULT_SUITES, SUITES
+
+
+def _stage1_options(pairs) -> dict | None:
+    """The ``--stage1-option`` pairs, checked by IPOPT (stage 1 runs on it by default) before any
+    work; None where none is given."""
+    if not pairs:
+        return None
+    from jaxhumanoid.outputs.cli import parse_pairs  # here: the command line imports this module
+
+    opts = parse_pairs(pairs, "--stage1-option")
+    try:
+        ipopt_capi.check_options(opts)
+    except ValueError as err:
+        raise ValueError(f"--stage1-option: {err}") from err
+    return opts
 
 
 def cmd_bench(args) -> int:
@@ -32,6 +48,7 @@ def cmd_bench(args) -> int:
         draws=args.draws,
         workers=args.workers,
         guess=args.guess,
+        stage1_options=_stage1_options(args.stage1_option),
         work_dir=f"{args.out}/work",
         quiet=args.quiet,
     )
@@ -77,6 +94,12 @@ def add_bench_parser(sub) -> None:
         default=None,
         choices=list(STRATEGY_GUESSES),
         help="table2, agreement and robustness suites: the first stage's initial guess (default solve's, the spec's)",
+    )
+    p.add_argument(
+        "--stage1-option",
+        action="append",
+        metavar="KEY=VALUE",
+        help="table2 and agreement suites: an IPOPT option of stage 1 of 2S, on top of solve's; repeatable",
     )
     p.add_argument("--out", default="bench", help="folder of the records (default bench/)")
     p.add_argument("--quiet", action="store_true", help="no progress lines")

@@ -42,6 +42,7 @@ class BenchSettings:
     robustness study's first K draws per task (None: all), the reference-draws suite's draws per
     file (None: its default); ``guess``: the first stage's initial guess of the built-in tasks'
     solves and of the robustness study (``STRATEGY_GUESSES``; None: ``solve``'s and the spec's);
+    ``stage1_options``: IPOPT options of stage 1 of the built-in tasks' 2S solves (None: ``solve``'s);
     ``work_dir``: where suites that write files (a sweep, an external script's record) put them."""
 
     repeats: int = 3
@@ -53,6 +54,7 @@ class BenchSettings:
     draws: int | None = None
     workers: int = 1
     guess: str | None = None
+    stage1_options: Mapping[str, Any] | None = None
     work_dir: str = "bench/work"
     quiet: bool = False
 

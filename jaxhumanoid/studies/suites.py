@@ -71,8 +71,12 @@ def _grid(settings: BenchSettings) -> dict[str, int]:
 
 
 def _builtin(settings: BenchSettings) -> dict[str, Any]:
-    """``solve``'s keywords of a built-in task's solve: the run's grid and initial guess."""
-    return _grid(settings) | ({} if settings.guess is None else {"settings": SolveSettings(guess=settings.guess)})
+    """``solve``'s keywords of a built-in task's solve: the run's grid, initial guess and stage-1
+    options."""
+    if settings.guess is None and settings.stage1_options is None:
+        return _grid(settings)
+    strategy = SolveSettings(stage1_options=settings.stage1_options)
+    return _grid(settings) | {"settings": strategy.replace(guess=settings.guess or strategy.guess)}
 
 
 def _its(values: Mapping[str, Any]) -> str:
