@@ -177,6 +177,20 @@ def test_handover_settings_come_from_the_task_file_and_the_command_line_override
         solve_arguments(build_parser().parse_args(["solve", "--N1", "2"]))
 
 
+def test_stage1_options_come_from_the_task_file_and_the_command_line_adds_to_them(tmp_path):
+    text = (EXAMPLES / "paper" / "T1.toml").read_text()
+    assert "\n[solve]\n" in text and "stage1_options" not in text
+    file = tmp_path / "t.toml"
+    file.write_text(text.replace("\n[solve]\n", "\n[solve]\nstage1_options = { tol = 1e-6, mu_init = 0.1 }\n"))
+    args = ["solve", "--task-file", str(file), "--stage1-option", "mu_init=1e-3", "--stage1-option", "max_iter=50"]
+    s = solve_arguments(build_parser().parse_args(args))["settings"]
+    assert dict(s.stage1_options) == {"tol": 1e-6, "mu_init": 1e-3, "max_iter": 50}
+    assert solve_arguments(build_parser().parse_args(["solve"]))["settings"].stage1_options is None
+    for bad in ("mu_init=abc", "mu_init", "no_such_option=1"):
+        with pytest.raises(ValueError, match="--stage1-option"):
+            solve_arguments(build_parser().parse_args(["solve", "--stage1-option", bad]))
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("key", ["T1", "T2", "T3", "T4"])
 def test_the_three_backends_reach_one_optimum_on_the_built_in_tasks(key):

@@ -7,7 +7,6 @@ import sys
 
 from jaxhumanoid.outputs.exits import working
 from jaxhumanoid.runtime import writable_dir
-from jaxhumanoid.solvers import ipopt_capi
 from jaxhumanoid.strategy.problem import STRATEGY_GUESSES
 from jaxhumanoid.studies.runner import (
     BACKENDS,
@@ -21,23 +20,10 @@ from jaxhumanoid.studies.runner import (
 from jaxhumanoid.studies.suites import DEFAULT_SUITES, SUITES
 
 
-def _stage1_options(pairs) -> dict | None:
-    """The ``--stage1-option`` pairs, checked by IPOPT (stage 1 runs on it by default) before any
-    work; None where none is given."""
-    if not pairs:
-        return None
-    from jaxhumanoid.outputs.cli import parse_pairs  # here: the command line imports this module
-
-    opts = parse_pairs(pairs, "--stage1-option")
-    try:
-        ipopt_capi.check_options(opts)
-    except ValueError as err:
-        raise ValueError(f"--stage1-option: {err}") from err
-    return opts
-
-
 def cmd_bench(args) -> int:
     """Run the named benchmark suites: one record (JSON) and its table (markdown) in ``--out``."""
+    from jaxhumanoid.outputs.cli import stage1_options_arg  # here: the command line imports this module
+
     settings = BenchSettings(
         repeats=args.repeats,
         tasks=tuple(args.tasks),
@@ -48,7 +34,7 @@ def cmd_bench(args) -> int:
         draws=args.draws,
         workers=args.workers,
         guess=args.guess,
-        stage1_options=_stage1_options(args.stage1_option),
+        stage1_options=stage1_options_arg(args.stage1_option),
         work_dir=f"{args.out}/work",
         quiet=args.quiet,
     )

@@ -95,6 +95,19 @@ def with_overrides(default, pairs, flag: str):
     return dataclasses.replace(default, **opts)
 
 
+def stage1_options_arg(pairs) -> dict | None:
+    """The ``--stage1-option`` pairs, IPOPT options of stage 1 of 2S on top of the others, checked
+    by IPOPT (stage 1's default solver) before any work; None where none is given."""
+    if not pairs:
+        return None
+    opts = parse_pairs(pairs, "--stage1-option")
+    try:
+        ipopt_capi.check_options(opts)
+    except ValueError as err:
+        raise ValueError(f"--stage1-option: {err}") from err
+    return opts
+
+
 def checked_options(args) -> dict:
     """The ``--ipopt-option`` pairs, checked by IPOPT itself for the IPOPT-based solvers before
     any problem is built (the own IPM checks its options when it builds them)."""
@@ -140,6 +153,9 @@ def solve_arguments(args) -> dict:
     flags = {k: getattr(args, k) for k in SETTINGS_FLAGS if getattr(args, k, None) is not None}
     if getattr(args, "foot_margin", None) is not None:
         flags["foot_margin"] = FootMargin(*args.foot_margin)
+    stage1 = stage1_options_arg(getattr(args, "stage1_option", None))
+    if stage1 is not None:
+        flags["stage1_options"] = {**(settings.stage1_options or {}), **stage1}
     settings = SolveSettings.from_mapping({**_fields(settings), **flags}, "command line")
     if getattr(args, "contact_force_limit", None) is not None:
         base["task"] = with_force_limit(base["task"], args.contact_force_limit)
@@ -463,6 +479,12 @@ def _add_solve_parser(sub) -> None:
         default=None,
         choices=["ipopt", "ipm", "casadi", "same"],
         help="the solver of 2S's relaxed-law stages (default ipopt); same: --solver",
+    )
+    p.add_argument(
+        "--stage1-option",
+        action="append",
+        metavar="KEY=VALUE",
+        help="IPOPT option of stage 1 of 2S only, on top of --ipopt-option and a task file's; repeatable",
     )
     p.add_argument(
         "--scaling",
