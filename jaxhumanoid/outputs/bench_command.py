@@ -6,6 +6,7 @@ from __future__ import annotations
 import sys
 
 from jaxhumanoid.outputs.exits import working
+from jaxhumanoid.outputs.flags import stage1_options_arg
 from jaxhumanoid.runtime import writable_dir
 from jaxhumanoid.strategy.problem import STRATEGY_GUESSES
 from jaxhumanoid.studies.runner import (
@@ -22,8 +23,6 @@ from jaxhumanoid.studies.suites import DEFAULT_SUITES, SUITES
 
 def cmd_bench(args) -> int:
     """Run the named benchmark suites: one record (JSON) and its table (markdown) in ``--out``."""
-    from jaxhumanoid.outputs.cli import stage1_options_arg  # here: the command line imports this module
-
     settings = BenchSettings(
         repeats=args.repeats,
         tasks=tuple(args.tasks),

@@ -27,6 +27,7 @@ from jaxhumanoid.outputs import plots, timeline, tracking_plots
 from jaxhumanoid.outputs.animation import animate
 from jaxhumanoid.outputs.bench_command import add_bench_parser
 from jaxhumanoid.outputs.exits import RunFailed, working
+from jaxhumanoid.outputs.flags import parse_pairs, stage1_options_arg
 from jaxhumanoid.progress import IterationLine, Progress
 from jaxhumanoid.runtime import enable_compilation_cache, writable_dir
 from jaxhumanoid.solvers import ipopt_capi
@@ -65,23 +66,6 @@ PAPER_TABLE2: dict[str, dict[str, tuple[str, str] | None]] = {
 }
 
 
-def parse_pairs(pairs, flag: str = "--ipopt-option") -> dict:
-    """``flag key=value`` pairs (``--ipopt-option``, ``--perturb``, ``--lqr``) as a dict, numbers parsed."""
-    opts = {}
-    for pair in pairs or []:
-        if "=" not in pair:
-            raise ValueError(f"{flag}: expected KEY=VALUE, got {pair!r}")
-        key, val = pair.split("=", 1)
-        for cast in (int, float):
-            try:
-                val = cast(val)
-                break
-            except ValueError:
-                continue
-        opts[key.strip()] = val
-    return opts
-
-
 def with_overrides(default, pairs, flag: str):
     """The dataclass instance ``default`` with the fields named by ``flag key=value`` pairs replaced
     (each value a number; the dataclass checks its range)."""
@@ -93,19 +77,6 @@ def with_overrides(default, pairs, flag: str):
         if isinstance(val, str):
             raise ValueError(f"{flag}: {key} expects a number, got {val!r}")
     return dataclasses.replace(default, **opts)
-
-
-def stage1_options_arg(pairs) -> dict | None:
-    """The ``--stage1-option`` pairs, IPOPT options of stage 1 of 2S on top of the others, checked
-    by IPOPT (stage 1's default solver) before any work; None where none is given."""
-    if not pairs:
-        return None
-    opts = parse_pairs(pairs, "--stage1-option")
-    try:
-        ipopt_capi.check_options(opts)
-    except ValueError as err:
-        raise ValueError(f"--stage1-option: {err}") from err
-    return opts
 
 
 def checked_options(args) -> dict:
