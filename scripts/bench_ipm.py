@@ -58,11 +58,9 @@ from jaxhumanoid.solvers.ipm import batch_solve_ipm, solve_ipm
 from jaxhumanoid.solvers.ipopt import solve_ipopt
 from jaxhumanoid.strategy.handover import STAGE2_DEFAULTS
 from jaxhumanoid.strategy.runner import Runner
-from jaxhumanoid.strategy.settings import SolveSettings
 from jaxhumanoid.strategy.solve import solve
-from jaxhumanoid.strategy.stage_one import STAGE1_DEFAULTS
 from jaxhumanoid.strategy.taskfile import load_task_file
-from jaxhumanoid.studies.bench import git_state, stage1_problem
+from jaxhumanoid.studies.bench import BENCH_STAGE1_OPTIONS, bench_settings, git_state, stage1_problem
 
 SCHEME = "A,F+C,2S"
 REPO = pathlib.Path(__file__).resolve().parents[1]
@@ -87,7 +85,7 @@ def stage2_start(name: str, ref_dir: pathlib.Path):
         return run(runner, problem, x0, options, stage)
 
     kw = solve_kwargs_of(name, ref_dir)
-    settings = (kw.get("settings") or SolveSettings()).replace(stage1_solver="ipopt", handover="direct")
+    settings = bench_settings(kw.get("settings")).replace(stage1_solver="ipopt", handover="direct")
     with mock.patch.object(Runner, "run", record):
         solve(**{**kw, "solver": "ipopt", "settings": settings})
     return calls[-1]
@@ -320,11 +318,11 @@ def rounding_spread(task: str) -> dict:
     first, _ = stage1_problem(task)
     runs = []
     for extra in ROUNDING_VARIANTS:
-        r = solve_ipopt(first.nlp, first.p, first.bounds, options={**STAGE1_DEFAULTS, **extra})
+        r = solve_ipopt(first.nlp, first.p, first.bounds, options={**BENCH_STAGE1_OPTIONS, **extra})
         runs.append(
             {"options": extra, "status": r.status, "iterations": int(r.iterations), "objective": float(r.objective)}
         )
-    r = solve_ipm(first.nlp, first.p, first.bounds, options=STAGE1_DEFAULTS)
+    r = solve_ipm(first.nlp, first.p, first.bounds, options=BENCH_STAGE1_OPTIONS)
     print(f"{task}: IPOPT its {[v['iterations'] for v in runs]}, IPM its {r.iterations} objective {r.objective:.4g}")
     return {
         "ipopt": runs,
@@ -339,7 +337,7 @@ def batch_throughput(batch: int) -> dict:
     weights = np.asarray(prob.p.weights)[None] * np.exp(0.2 * rng.standard_normal((batch, np.size(prob.p.weights))))
     p_batch = jax.tree.map(lambda a: jnp.broadcast_to(a, (batch,) + jnp.shape(a)), prob.p)
     p_batch = dataclasses.replace(p_batch, weights=jnp.asarray(weights))
-    opts = dict(STAGE1_DEFAULTS)
+    opts = dict(BENCH_STAGE1_OPTIONS)
     batch_solve_ipm(prob.nlp, p_batch, prob.bounds, options=opts)  # compile
     res_b, _, t_batch = timed(lambda: batch_solve_ipm(prob.nlp, p_batch, prob.bounds, options=opts))
     members = [jax.tree.map(lambda a, i=i: a[i], p_batch) for i in range(batch)]

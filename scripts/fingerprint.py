@@ -28,8 +28,7 @@ from jaxhumanoid.diff import sensitivity_table
 from jaxhumanoid.solvers.ipm import solve_ipm
 from jaxhumanoid.solvers.ipopt import solve_ipopt
 from jaxhumanoid.strategy.handover import STAGE2_DEFAULTS, stage_two_start
-from jaxhumanoid.strategy.stage_one import STAGE1_DEFAULTS
-from jaxhumanoid.studies.bench import stage1_problem
+from jaxhumanoid.studies.bench import BENCH_STAGE1_OPTIONS, stage1_problem
 from jaxhumanoid.validation import testproblems as tp
 
 
@@ -44,9 +43,9 @@ def _rec(r) -> dict:
 def task_records(task: str) -> dict:
     first, final = stage1_problem(task)
     out = {}
-    r1 = solve_ipopt(first.nlp, first.p, first.bounds, options=STAGE1_DEFAULTS)
+    r1 = solve_ipopt(first.nlp, first.p, first.bounds, options=BENCH_STAGE1_OPTIONS)
     out["stage1_ipopt"] = _rec(r1)
-    out["stage1_ipm"] = _rec(solve_ipm(first.nlp, first.p, first.bounds, options=STAGE1_DEFAULTS))
+    out["stage1_ipm"] = _rec(solve_ipm(first.nlp, first.p, first.bounds, options=BENCH_STAGE1_OPTIONS))
     x0, _ = stage_two_start(first.full(r1.x), final)
     for name, fn in (("ipopt", solve_ipopt), ("ipm", solve_ipm)):
         out[f"stage2_{name}"] = _rec(fn(final.nlp, final.p, final.bounds, x0=x0, options=STAGE2_DEFAULTS))

@@ -8,7 +8,8 @@
 The tables are copied into docs/tracking.md, which explains them.
 
 Each task (a built-in key or a task file) is solved with the defaults (A,F+C,2S, N = 100, IPOPT;
-a task file's own settings), on ``--N`` intervals and with ``--foot-margin`` when given, into
+a task file's own settings) but stage 1's options, which are the benchmarks' fixed
+``BENCH_STAGE1_OPTIONS`` unless a task file sets its own, on ``--N`` intervals and with ``--foot-margin`` when given, into
 ``--plans``/<label> (reused when a solution is already there; the label is the key, or the task
 file's folder and stem, with the margin, the grid and ``--contact-force-limit`` appended when
 given), then ``jaxhumanoid.tracking.track`` runs ``--trials`` perturbed
@@ -43,6 +44,7 @@ from jaxhumanoid.model.foot import FootMargin
 from jaxhumanoid.ocp.tasks import with_force_limit
 from jaxhumanoid.outputs.cli import force_limit_arg, with_overrides
 from jaxhumanoid.progress import Progress
+from jaxhumanoid.studies.bench import bench_settings
 from jaxhumanoid.tracking import LQRWeights, Perturbation, track
 from jaxhumanoid.tracking.filter import SafetyFilter
 from jaxhumanoid.tracking.plan import interval_defects
@@ -64,9 +66,9 @@ def plan(task: str, plans: pathlib.Path, margin=None, N=None, limit=None) -> pat
         kwargs = jh.load_task_file(task).as_solve_kwargs() if task.endswith(".toml") else {"task": task}
         if limit is not None:
             kwargs["task"] = with_force_limit(kwargs["task"], limit)
+        kwargs["settings"] = bench_settings(kwargs.get("settings"))
         if margin is not None:
-            settings = kwargs.get("settings") or jh.SolveSettings()
-            kwargs["settings"] = settings.replace(foot_margin=FootMargin(*margin))
+            kwargs["settings"] = kwargs["settings"].replace(foot_margin=FootMargin(*margin))
         if N is not None:
             kwargs["N"] = N
         sol = jh.solve(**kwargs)

@@ -21,8 +21,7 @@ import scipy.sparse as sp
 from jaxhumanoid.ocp import transcription as tr
 from jaxhumanoid.solvers.ipopt import solve_ipopt
 from jaxhumanoid.strategy.handover import STAGE2_DEFAULTS, interpolate_full
-from jaxhumanoid.strategy.stage_one import STAGE1_DEFAULTS
-from jaxhumanoid.studies.bench import stage1_problem
+from jaxhumanoid.studies.bench import BENCH_STAGE1_OPTIONS, stage1_problem
 
 
 def make_data(path: str) -> dict[str, np.ndarray]:
@@ -33,7 +32,7 @@ def make_data(path: str) -> dict[str, np.ndarray]:
         return {k: z[k] for k in z.files}
     first, prob = stage1_problem("T1")
     nlp, b = prob.nlp, prob.bounds
-    r1 = solve_ipopt(first.nlp, first.p, first.bounds, options=STAGE1_DEFAULTS)
+    r1 = solve_ipopt(first.nlp, first.p, first.bounds, options=BENCH_STAGE1_OPTIONS)
     Zf = interpolate_full(first.full(r1.x), float(prob.p.T), prob.layout)
     x0 = np.clip(np.asarray(tr.free_from_full(prob.layout, Zf)), b.xl, b.xu)
     out: dict[str, np.ndarray] = {}
