@@ -207,5 +207,8 @@ def test_the_runs_guess_reaches_the_robustness_cases_and_the_builtin_solves():
     assert [c.draw for c in both.cases] == [c.draw for c in plain.cases]
     assert suites._builtin(BenchSettings(N=20)) == {"N": 20}
     assert suites._builtin(BenchSettings(guess="static_path"))["settings"].guess == "static_path"
+    barrier = suites.robustness_spec(BenchSettings(backends=("ipopt",), draws=1, stage1_options={"mu_init": 0.1}))
+    assert [dict(c.stage1_options) for c in barrier.cases] == [{"mu_init": 0.1}] * 4
+    assert [c.guess for c in barrier.cases] == [None] * 4
     s = suites._builtin(BenchSettings(stage1_options={"mu_init": 1e-3}))["settings"]
     assert dict(s.stage1_options) == {"mu_init": 1e-3} and s.guess == SolveSettings().guess

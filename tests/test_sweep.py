@@ -66,6 +66,7 @@ def test_ids_are_hashes_of_the_parameters():
         ("robustness_force_limit_draws20", "robustness_force_limit"),
         ("robustness_scaling_draws3", "robustness_scaling"),
         ("robustness_static_path_draws10", "robustness_static_path"),
+        ("robustness_default_draws10", "robustness"),
         ("inverse_multistart", "inverse_multistart"),
     ],
 )
@@ -92,6 +93,27 @@ def test_a_spec_setting_reaches_the_solve_and_an_unset_one_keeps_the_ids(key, va
     assert key not in a.params() and scaled.params()[key] == value
     assert getattr(base_problem(scaled)["settings"], key) == value
     assert base_problem(a)["settings"] == SolveSettings()  # the package's defaults
+
+
+def test_stage1_options_reach_the_solve_on_top_of_a_task_files_and_unset_keep_the_ids(tmp_path):
+    (a, _) = parse_spec(TINY).cases
+    (b, _) = parse_spec({**TINY, "stage1_options": {"mu_init": 1e-2}}).cases
+    assert "stage1_options" not in a.params() and b.params()["stage1_options"] == {"mu_init": 1e-2}
+    assert b.id != a.id and b.problem != a.problem
+    assert base_problem(a)["settings"].stage1_options is None
+    assert dict(base_problem(b)["settings"].stage1_options) == {"mu_init": 1e-2}
+    file = tmp_path / "T1.toml"
+    text = (ROOT / "examples" / "paper" / "T1.toml").read_text()
+    file.write_text(text.replace("\n[solve]\n", "\n[solve]\nstage1_options = { tol = 1e-6, mu_init = 0.1 }\n"))
+    on_file = dataclasses.replace(b, task_path=str(file))
+    assert dict(base_problem(on_file)["settings"].stage1_options) == {"tol": 1e-6, "mu_init": 1e-2}
+
+
+def test_bad_stage1_options_are_rejected_before_any_work(tmp_path):
+    spec = parse_spec({**TINY, "stage1_options": {"mu_init": "abc"}})
+    with pytest.raises(ValueError, match="^stage1_options: "):
+        sweep(spec, tmp_path / "out")
+    assert not (tmp_path / "out").exists()
 
 
 def test_random_draws_are_reproducible_and_independent_of_their_number():
@@ -130,6 +152,7 @@ def test_random_draws_are_reproducible_and_independent_of_their_number():
         ({"kind": "table"}, "kind"),
         ({"scaling": "si"}, "scaling"),
         ({"guess": "zero"}, "guess"),
+        ({"stage1_options": 1e-2}, "stage1_options"),
         ({"kind": "inverse", "methods": ["newton"], "grid": None}, "methods"),
     ],
 )

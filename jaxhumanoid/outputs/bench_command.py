@@ -84,7 +84,7 @@ def add_bench_parser(sub) -> None:
         "--stage1-option",
         action="append",
         metavar="KEY=VALUE",
-        help="table2 and agreement suites: an IPOPT option of stage 1 of 2S, on top of solve's; repeatable",
+        help="table2, agreement and robustness suites: an IPOPT option of stage 1 of 2S, on top of solve's; repeatable",
     )
     p.add_argument("--out", default="bench", help="folder of the records (default bench/)")
     p.add_argument("--quiet", action="store_true", help="no progress lines")

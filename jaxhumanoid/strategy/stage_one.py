@@ -205,8 +205,8 @@ def stage_one(
     from each of ``BOTH_GUESSES`` (the second skipped where its start is the first's, as where no
     static path is found) and hands over the solution of lower objective, the successful one where
     one fails: the two guesses end in different stage-1 optima, and over perturbed problems the
-    lower one leads the dynamic stages to lower optima more often than to higher ones, in a third
-    fewer iterations in all (docs/results.md). A success that needed
+    lower one leads the dynamic stages to lower optima more often than to higher ones
+    (docs/results.md). A success that needed
     relaxed bounds is announced by a warning. Returns (stats of every run, of every guess, with the
     handed-over run's status and objective; Z1 (N1 + 1, s) of that run)."""
     task, N1 = relaxed.task, settings.stage1_grid(relaxed.layout.N)

@@ -38,7 +38,8 @@ SOLVE_DEFAULTS = {"N": 100, "T": 5.0}
 
 def base_problem(case: Case) -> dict[str, Any]:
     """The keyword arguments of ``solve`` for the unperturbed task: a paper key, or a task file's
-    body, laws, options and settings (N, T, N1, scaling and guess of the file unless the case sets them),
+    body, laws, options and settings (N, T, N1, scaling and guess of the file unless the case sets them,
+    stage 1's options added to the file's),
     the task with the case's ``contact_force_limit`` where it sets one."""
     if case.task_path is None:
         kwargs: dict[str, Any] = {"task": get_task(case.task), "model": None, "contact": None, "options": None}
@@ -50,8 +51,11 @@ def base_problem(case: Case) -> dict[str, Any]:
         value = getattr(case, key)
         kwargs[key] = value if value is not None else kwargs.get(key, SOLVE_DEFAULTS.get(key))
     kwargs["options"] = {**(kwargs.get("options") or {}), **dict(case.options)} or None
+    settings = kwargs.get("settings") or SolveSettings()
     changes = {k: getattr(case, k) for k in ("N1", "scaling", "guess") if getattr(case, k) is not None}
-    kwargs["settings"] = (kwargs.get("settings") or SolveSettings()).replace(**changes)
+    if case.stage1_options:
+        changes["stage1_options"] = {**(settings.stage1_options or {}), **dict(case.stage1_options)}
+    kwargs["settings"] = settings.replace(**changes)
     if case.contact_force_limit is not None:
         kwargs["task"] = with_force_limit(kwargs["task"], case.contact_force_limit)
     return kwargs

@@ -42,7 +42,8 @@ class BenchSettings:
     robustness study's first K draws per task (None: all), the reference-draws suite's draws per
     file (None: its default); ``guess``: the first stage's initial guess of the built-in tasks'
     solves and of the robustness study (``STRATEGY_GUESSES``; None: ``solve``'s and the spec's);
-    ``stage1_options``: IPOPT options of stage 1 of the built-in tasks' 2S solves (None: ``solve``'s);
+    ``stage1_options``: IPOPT options of stage 1 of 2S in the built-in tasks' solves and the
+    robustness study, added to ``solve``'s and the spec's (None: theirs);
     ``work_dir``: where suites that write files (a sweep, an external script's record) put them."""
 
     repeats: int = 3

@@ -15,6 +15,8 @@
     save = true                           # write each solution to DIR/cases/<id>/ (default true)
     [options]                             # solver options of every case (optional)
     tol = 1e-8
+    [stage1_options]                      # IPOPT options of stage 1 of 2S, added to solve's (optional)
+    mu_init = 1e-2
     [grid]                                # cartesian product of perturbations: lists of factors
     "weights.w_u" = [0.5, 1.0, 2.0]
     [random]                              # seeded draws, each a perturbed problem of every task
@@ -81,7 +83,7 @@ DISTRIBUTIONS = ("uniform", "log_uniform", "choice")
 METHODS = ("gn", "lbfgs")
 TOP_KEYS = {
     "solve": {"name", "kind", "tasks", "schemes", "solvers", "N", "T", "N1", "scaling", "save", "options", "grid"}
-    | {"random", "contact_force_limit", "guess"},
+    | {"random", "contact_force_limit", "guess", "stage1_options"},
     "inverse": {"name", "kind", "tasks", "schemes", "N", "T", "methods", "starts", "seeds", "max_evals"}
     | {"recovery_rtol"},
 }
@@ -116,6 +118,7 @@ class Case:
     contact_force_limit: float | str | None = None
     guess: str | None = None
     options: tuple[tuple[str, Any], ...] = ()
+    stage1_options: tuple[tuple[str, Any], ...] = ()
     factors: tuple[tuple[str, float], ...] = ()
     start_offset: tuple[float, ...] | None = None
     start_deg: float = 0.0
@@ -131,8 +134,8 @@ class Case:
 
     def params(self, with_solver: bool = True) -> dict[str, Any]:
         """The canonical parameters (everything but ``task_path``, ``save`` and an unset ``scaling``,
-        ``contact_force_limit`` or ``guess``, so that a case's id does not change where the spec
-        leaves them to the task)."""
+        ``contact_force_limit``, ``guess`` or ``stage1_options``, so that a case's id does not change
+        where the spec leaves them to the task)."""
         d = dataclasses.asdict(self)
         d.pop("task_path")
         d.pop("save")
@@ -140,6 +143,10 @@ class Case:
             if d[key] is None:
                 d.pop(key)
         d["options"] = dict(self.options)
+        if self.stage1_options:
+            d["stage1_options"] = dict(self.stage1_options)
+        else:
+            d.pop("stage1_options")
         d["factors"] = dict(self.factors)
         if not with_solver:
             d.pop("solver")
@@ -344,6 +351,9 @@ def _solve_cases(data: Mapping, base: pathlib.Path) -> tuple[list[Case], tuple[s
     options = data.get("options", {})
     if not isinstance(options, dict):
         raise ValueError(f"options: expected a table of solver options, got {options!r}")
+    stage1_options = data.get("stage1_options", {})
+    if not isinstance(stage1_options, dict):
+        raise ValueError(f"stage1_options: expected a table of IPOPT options, got {stage1_options!r}")
     grid = _check_grid(data.get("grid", {}))
     random = _check_random(data["random"]) if "random" in data else None
     for name in grid:
@@ -375,6 +385,7 @@ def _solve_cases(data: Mapping, base: pathlib.Path) -> tuple[list[Case], tuple[s
                     contact_force_limit=cap,
                     guess=guess,
                     options=tuple(sorted(options.items())),
+                    stage1_options=tuple(sorted(stage1_options.items())),
                     factors=tuple(sorted(factors.items())),
                     start_offset=drawn.get("start_offset"),
                     start_deg=random["start_deg"] if random else 0.0,

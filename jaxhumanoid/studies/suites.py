@@ -36,6 +36,7 @@ from jaxhumanoid.strategy.taskfile import solve_kwargs
 from jaxhumanoid.studies.bench import REPO
 from jaxhumanoid.studies.compare import Outcome, agreement
 from jaxhumanoid.studies.runner import BenchSettings, Case, Measurement, Suite, fmt_time
+from jaxhumanoid.studies.spec import Case as StudyCase
 from jaxhumanoid.studies.spec import Spec, load_spec
 from jaxhumanoid.studies.sweep import select_cases, sweep
 
@@ -370,16 +371,24 @@ def robustness_cases(settings: BenchSettings) -> list[Case]:
 
 def robustness_spec(settings: BenchSettings) -> Spec:
     """The study's cases on the run's tasks, backends and first ``draws`` draws, with the run's
-    ``guess`` where it sets one."""
+    ``guess`` where it sets one and its ``stage1_options`` added to the spec's."""
     spec = select_cases(load_spec(settings.spec), list(settings.backends), settings.draws)
+    changes: dict[str, Any] = {} if settings.guess is None else {"guess": settings.guess}
     cases = tuple(
-        c if settings.guess is None else dataclasses.replace(c, guess=settings.guess)
+        dataclasses.replace(c, **changes, **_stage1_options(c, settings.stage1_options))
         for c in spec.cases
         if c.task in settings.tasks
     )
     if not cases:
         raise ValueError(f"--tasks: none of {list(settings.tasks)} in the study {settings.spec!r}")
     return dataclasses.replace(spec, cases=cases)
+
+
+def _stage1_options(case: StudyCase, options: Mapping[str, Any] | None) -> dict[str, Any]:
+    """``dataclasses.replace``'s keywords that add ``options`` to the case's stage-1 options."""
+    if not options:
+        return {}
+    return {"stage1_options": tuple(sorted({**dict(case.stage1_options), **options}.items()))}
 
 
 def _robustness_run(spec: Spec, settings: BenchSettings) -> Measurement:

@@ -43,6 +43,12 @@ def check_run(spec: Spec, engine: str, workers: int, address: str | None) -> Non
             ipopt_capi.check_options(ipopt_options)
         except ValueError as err:
             raise ValueError(f"options: {err}") from err
+    stage1_options = {k: v for c in spec.cases for k, v in c.stage1_options}
+    if stage1_options:
+        try:
+            ipopt_capi.check_options(stage1_options)
+        except ValueError as err:
+            raise ValueError(f"stage1_options: {err}") from err
 
 
 def select_cases(spec: Spec, solvers: Sequence[str] | None = None, draws: int | None = None) -> Spec:
