@@ -16,7 +16,7 @@ from jaxhumanoid.solvers.ipopt import solve_cyipopt_reference, solve_ipopt
 from jaxhumanoid.strategy.posture import reseat_for_contact
 from jaxhumanoid.strategy.problem import build_problem
 from jaxhumanoid.strategy.solve import solve
-from jaxhumanoid.strategy.stage_one import STAGE1_DEFAULTS
+from jaxhumanoid.studies.bench import BENCH_STAGE1_OPTIONS
 from jaxhumanoid.validation import testproblems as tp
 
 # degenerate HS013 (no constraint qualification at x*): IPOPT 3.14 and the IPM both stop at
@@ -175,20 +175,21 @@ def test_bad_options_raise(bad, match):
 
 
 def test_humanoid_pseudo_static_stage_small_n_as_ipopt():
-    """Stage 1 of 2S on T3 (pseudo-static (8), relaxed contact law) at N1 = 10 with the 2S stage-1
-    options. A fixed initial state makes one end pivot block structurally singular, which the
-    elimination order must handle (kkt.build_structure); the iteration follows IPOPT's (filter,
-    inertia correction, degeneracy test), so both reach the same optimum in as many iterations
-    (78 each, with IPOPT 3.14.11 and 3.14.19). The path passes through a restoration phase in
-    which mu decreases: with the proximity term of the restoration Hessian at the new mu instead
-    of IPOPT's (evaluated before the update, ``direction.kkt_factor``) the IPM takes 90."""
+    """Stage 1 of 2S on T3 (pseudo-static (8), relaxed contact law) at N1 = 10 with the benchmarks'
+    fixed stage-1 options (``mu_init = 1e-2``). A fixed initial state makes one end pivot block
+    structurally singular, which the elimination order must handle (kkt.build_structure); the
+    iteration follows IPOPT's (filter, inertia correction, degeneracy test), so both reach the same
+    optimum in as many iterations (78 each, with IPOPT 3.14.11 and 3.14.19). The path passes
+    through a restoration phase in which mu decreases: with the proximity term of the restoration
+    Hessian at the new mu instead of IPOPT's (evaluated before the update,
+    ``direction.kkt_factor``) the IPM takes 90."""
     task = with_force_limit("T3", NO_FORCE_LIMIT)
     relaxed = ContactParams.relaxed()
     final = build_problem(task, "A,F+C,2S", N=20)
     q1, _ = reseat_for_contact(final.p, final.p.q_start, final.layout.active, relaxed)
     prob = build_problem(task, "A,F+C,2S", N=10, pseudo_static=True, contact=relaxed, q_start=q1)
-    r = solve_ipm(prob.nlp, prob.p, prob.bounds, options=STAGE1_DEFAULTS)
-    ref = solve_ipopt(prob.nlp, prob.p, prob.bounds, options=STAGE1_DEFAULTS)
+    r = solve_ipm(prob.nlp, prob.p, prob.bounds, options=BENCH_STAGE1_OPTIONS)
+    ref = solve_ipopt(prob.nlp, prob.p, prob.bounds, options=BENCH_STAGE1_OPTIONS)
     assert r.status == ref.status == "Solve_Succeeded", r.log
     assert r.max_constraint_violation <= 1e-6
     assert abs(r.iterations - ref.iterations) <= 0.1 * ref.iterations, (r.iterations, ref.iterations)

@@ -16,7 +16,7 @@ from jaxhumanoid.solvers.ipm import batch_solve_ipm, kkt, solve_ipm
 from jaxhumanoid.solvers.ipm.kkt import condensed
 from jaxhumanoid.strategy.posture import reseat_for_contact
 from jaxhumanoid.strategy.problem import build_problem
-from jaxhumanoid.strategy.stage_one import STAGE1_DEFAULTS
+from jaxhumanoid.studies.bench import BENCH_STAGE1_OPTIONS
 
 
 def staged(seed, S, nx, nc, reverse=False):
@@ -164,7 +164,7 @@ def test_ipm_takes_the_same_steps_with_either_kkt_solve():
     q1, _ = reseat_for_contact(final.p, final.p.q_start, final.layout.active, relaxed)
     prob = build_problem("T3", "A,F+C,2S", N=10, pseudo_static=True, contact=relaxed, q_start=q1)
     runs = [
-        solve_ipm(prob.nlp, prob.p, prob.bounds, options={**STAGE1_DEFAULTS, "kkt_method": k})
+        solve_ipm(prob.nlp, prob.p, prob.bounds, options={**BENCH_STAGE1_OPTIONS, "kkt_method": k})
         for k in ("block_ldl", "condensed")
     ]
     assert runs[0].status == runs[1].status == "Solve_Succeeded"
