@@ -23,9 +23,9 @@ from jaxhumanoid.strategy.settings import SolveSettings
 from jaxhumanoid.strategy.solution import StageStats
 
 # The barrier of stage 1 (docs/decisions.md): over the whole 2S of 40 perturbed problems,
-# mu_init = 1e-3 solves all 40 and takes a quarter fewer iterations in all than 1e-2 (39 of 40),
-# which in turn fails less often than IPOPT's 0.1; on the built-in tasks 2S then takes less time
-# than 1S with each backend.
+# mu_init = 1e-3 solves all 40 and takes a quarter fewer iterations in all than 1e-2 (39 of 40;
+# IPOPT's 0.1 did no better than 1e-2 on stage 1 alone); on the built-in tasks 2S then takes
+# less time than 1S with each backend.
 STAGE1_DEFAULTS = {"mu_init": 1e-3}
 # Stage 1 poses the body with twice its torque box (the cost keeps the task's weights; the
 # dynamic stages keep the body's box): a quasi-static motion, without inertia to carry the body
