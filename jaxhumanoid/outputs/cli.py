@@ -126,7 +126,7 @@ def solve_arguments(args) -> dict:
         flags["foot_margin"] = FootMargin(*args.foot_margin)
     stage1 = stage1_options_arg(getattr(args, "stage1_option", None))
     if stage1 is not None:
-        flags["stage1_options"] = {**(settings.stage1_options or {}), **stage1}
+        flags["stage1_options"] = settings.merged_stage1_options(stage1)
     settings = SolveSettings.from_mapping({**_fields(settings), **flags}, "command line")
     if getattr(args, "contact_force_limit", None) is not None:
         base["task"] = with_force_limit(base["task"], args.contact_force_limit)

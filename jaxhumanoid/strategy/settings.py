@@ -133,6 +133,11 @@ class SolveSettings:
         except ValueError as err:
             raise ValueError(f"{where}: {err}") from err
 
+    def merged_stage1_options(self, extra: Mapping[str, Any]) -> dict[str, Any]:
+        """Stage 1's options with ``extra`` on top (a task file's, then a command line's or a
+        study case's)."""
+        return {**(self.stage1_options or {}), **extra}
+
     def stage1_grid(self, N: int) -> int:
         """N1 of a solve on an N-interval final grid."""
         return min(STAGE1_N, int(N)) if self.N1 is None else int(self.N1)

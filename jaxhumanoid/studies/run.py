@@ -54,7 +54,7 @@ def base_problem(case: Case) -> dict[str, Any]:
     settings = kwargs.get("settings") or SolveSettings()
     changes = {k: getattr(case, k) for k in ("N1", "scaling", "guess") if getattr(case, k) is not None}
     if case.stage1_options:
-        changes["stage1_options"] = {**(settings.stage1_options or {}), **dict(case.stage1_options)}
+        changes["stage1_options"] = settings.merged_stage1_options(dict(case.stage1_options))
     kwargs["settings"] = settings.replace(**changes)
     if case.contact_force_limit is not None:
         kwargs["task"] = with_force_limit(kwargs["task"], case.contact_force_limit)

@@ -37,18 +37,17 @@ def check_run(spec: Spec, engine: str, workers: int, address: str | None) -> Non
         raise ValueError(f"--workers: expected an integer >= 1, got {workers!r}")
     if address is not None and engine == "local":
         raise ValueError("--address: the local engine takes no address (give --engine dask)")
-    ipopt_options = {k: v for c in spec.cases if c.solver in ("ipopt", "casadi") for k, v in c.options}
-    if ipopt_options:
+    ipopt_options = {
+        "options": {k: v for c in spec.cases if c.solver in ("ipopt", "casadi") for k, v in c.options},
+        "stage1_options": {k: v for c in spec.cases for k, v in c.stage1_options},
+    }
+    for field, options in ipopt_options.items():
+        if not options:
+            continue
         try:
-            ipopt_capi.check_options(ipopt_options)
+            ipopt_capi.check_options(options)
         except ValueError as err:
-            raise ValueError(f"options: {err}") from err
-    stage1_options = {k: v for c in spec.cases for k, v in c.stage1_options}
-    if stage1_options:
-        try:
-            ipopt_capi.check_options(stage1_options)
-        except ValueError as err:
-            raise ValueError(f"stage1_options: {err}") from err
+            raise ValueError(f"{field}: {err}") from err
 
 
 def select_cases(spec: Spec, solvers: Sequence[str] | None = None, draws: int | None = None) -> Spec:
