@@ -8,8 +8,8 @@
 The tables are copied into docs/tracking.md, which explains them.
 
 Each task (a built-in key or a task file) is solved with the defaults (A,F+C,2S, N = 100, IPOPT;
-a task file's own settings) but stage 1's options, which are the benchmarks' fixed
-``BENCH_STAGE1_OPTIONS`` unless a task file sets its own, on ``--N`` intervals and with
+a task file's own settings) but stage 1's and the dynamic stages' options, which are the
+benchmarks' fixed ``bench_settings`` unless a task file sets its own, on ``--N`` intervals and with
 ``--foot-margin`` when given, into
 ``--plans``/<label> (reused when a solution is already there; the label is the key, or the task
 file's folder and stem, with the margin, the grid and ``--contact-force-limit`` appended when

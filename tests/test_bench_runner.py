@@ -212,3 +212,13 @@ def test_the_runs_guess_reaches_the_robustness_cases_and_the_builtin_solves():
     assert [c.guess for c in barrier.cases] == [None] * 4
     s = suites._builtin(BenchSettings(stage1_options={"mu_init": 1e-3}))["settings"]
     assert dict(s.stage1_options) == {"mu_init": 1e-3} and s.guess == SolveSettings().guess
+
+
+def test_bench_settings_pin_the_workloads_options_where_none_are_set():
+    from jaxhumanoid.studies.bench import BENCH_STAGE1_OPTIONS, BENCH_STAGE2_OPTIONS, bench_settings
+
+    pinned = bench_settings(None)
+    assert dict(pinned.stage1_options) == BENCH_STAGE1_OPTIONS
+    assert dict(pinned.stage2_options) == BENCH_STAGE2_OPTIONS
+    own = bench_settings(SolveSettings(stage1_options={"mu_init": 0.1}, stage2_options={"tol": 1e-6}))
+    assert dict(own.stage1_options) == {"mu_init": 0.1} and dict(own.stage2_options) == {"tol": 1e-6}

@@ -199,6 +199,8 @@ def test_continuation_hands_over_along_the_law_path_and_stops_at_a_failure(monke
     np.testing.assert_allclose([c[2] for c in calls[1:]], [float(law.kappa) for law in laws])
     assert calls[1][3]["mu_init"] == handover.STAGE2_DEFAULTS["mu_init"]
     assert all(c[3]["mu_init"] == handover.CONTINUATION_OPTIONS["mu_init"] for c in calls[2:])
+    # the relaxed-law solve and the laws before the nominal one are starts: the looser tolerance
+    assert [c[3].get("tol") for c in calls] == [None] + [handover.INTERMEDIATE_OPTIONS["tol"]] * 3 + [None]
     assert [s.runs for s in sol.stages] == [(11,), (12,), (13, 14, 15)] and sol.success
     assert sol.stages[2].iterations == 13 + 14 + 15 and sol.stages[2].attempts == 3
     calls.clear()
@@ -207,6 +209,10 @@ def test_continuation_hands_over_along_the_law_path_and_stops_at_a_failure(monke
     assert len(calls) == 6 and sol.success and sol.stages[2].runs == (13, 14, 15, 16)
     assert calls[4][2] == calls[3][2] and calls[4][3]["mu_init"] == handover.DYNAMIC_FALLBACKS[0]["mu_init"]
     assert calls[5][3]["mu_init"] == handover.CONTINUATION_OPTIONS["mu_init"]  # the next law: the small barrier again
+    calls.clear()
+    fail_at = 0
+    solve("T1", "A,F+C,2S", solver=solver, options={"tol": 1e-6}, **kw)  # a tol of the solve holds for every stage
+    assert [c[3]["tol"] for c in calls] == [1e-6] * 5
 
 
 @pytest.mark.parametrize("solver", ["ipopt", "ipm"])

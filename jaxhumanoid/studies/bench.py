@@ -36,6 +36,10 @@ SCHEME = "A,F+C,2S"
 # here, so that a change of ``solve``'s stage-1 defaults does not move the workloads the per-
 # iteration records compare.
 BENCH_STAGE1_OPTIONS = {"mu_init": 1e-2}
+# The dynamic stages' options of the plans made for the tracking studies: every dynamic stage to
+# IPOPT's tol = 1e-8, the relaxed-law and intermediate ones included (``handover.INTERMEDIATE_OPTIONS``
+# loosens those by default), so that the plans the tracking records were made from stay the same.
+BENCH_STAGE2_OPTIONS = {"tol": 1e-8}
 REPO = pathlib.Path(__file__).resolve().parents[2]
 
 
@@ -108,9 +112,11 @@ def stage1_problem(task: str, N1: int = STAGE1_N) -> tuple[Problem, Problem]:
 
 def bench_settings(settings: SolveSettings | None = None) -> SolveSettings:
     """``settings`` (``SolveSettings()`` when None) with stage 1's options ``BENCH_STAGE1_OPTIONS``
-    where it sets none of its own."""
+    and the dynamic stages' ``BENCH_STAGE2_OPTIONS`` where it sets none of its own."""
     settings = settings or SolveSettings()
-    return settings if settings.stage1_options else settings.replace(stage1_options=BENCH_STAGE1_OPTIONS)
+    if not settings.stage1_options:
+        settings = settings.replace(stage1_options=BENCH_STAGE1_OPTIONS)
+    return settings if settings.stage2_options else settings.replace(stage2_options=BENCH_STAGE2_OPTIONS)
 
 
 def stage2_warm_start(task: str) -> tuple[Problem, np.ndarray]:
