@@ -43,8 +43,8 @@ CONTINUATION_OPTIONS = {"mu_init": 1e-5}
 # The relaxed-law dynamic solve and the continuation's laws before the nominal one are starts of
 # the next solve, not results: they stop at a looser tolerance (beneath the stage's own options,
 # so that a ``tol`` given for the solve holds for every stage). Over 40 perturbed problems that
-# saves about 10 iterations a problem, at the same optimum on 33 and within 1 % on all but one
-# (docs/decisions.md).
+# saves about 10 iterations a problem, at the same optimum (within 1e-6) on 31 and within 0.7 %
+# on all but one (docs/decisions.md).
 INTERMEDIATE_OPTIONS = {"tol": 1e-3}
 # The relaxed-law dynamic solve starts from stage 1's quasi-static motion with stage 2's small
 # barrier and bound push, which keep that start. Where the start is far from a dynamic motion, the
