@@ -64,17 +64,18 @@ def _patch(variant: dict, stage1_only: bool) -> None:
     stage_one = _original(solve_mod, "stage_one")
     seen: dict = {}
 
-    def patched_run_path(problems, x0, options, runner, label):
+    def patched_run_path(problems, x0, options, runner, label, ends_path=True):
         if label.startswith("stage 1 (dynamic") and variant.get("relaxed"):
-            return run_path(problems, x0, {**options, **variant["relaxed"]}, runner, label)
+            return run_path(problems, x0, {**options, **variant["relaxed"]}, runner, label, ends_path)
         if not (label.startswith("stage 2") and variant.get("mid") and len(problems) > 1):
-            return run_path(problems, x0, options, runner, label)
+            return run_path(problems, x0, options, runner, label, ends_path)
         attempts, x = [], x0
         for j, problem in enumerate(problems):
-            opts = options if j == len(problems) - 1 else {**options, **variant["mid"]}
+            last = j == len(problems) - 1
+            opts = options if last else {**handover.INTERMEDIATE_OPTIONS, **options, **variant["mid"]}
             if j:
                 opts = {**opts, **handover.CONTINUATION_OPTIONS}
-            runs, solved = run_path([problem], x, opts, runner, label)
+            runs, solved = run_path([problem], x, opts, runner, label, ends_path or not last)
             attempts += runs
             if not solved:
                 return attempts, j
