@@ -64,18 +64,18 @@ def _patch(variant: dict, stage1_only: bool) -> None:
     stage_one = _original(solve_mod, "stage_one")
     seen: dict = {}
 
-    def patched_run_path(problems, x0, options, runner, label, ends_path=True):
+    def patched_run_path(problems, x0, options, runner, label):
         if label.startswith("stage 1 (dynamic") and variant.get("relaxed"):
-            return run_path(problems, x0, {**options, **variant["relaxed"]}, runner, label, ends_path)
+            return run_path(problems, x0, {**options, **variant["relaxed"]}, runner, label)
         if not (label.startswith("stage 2") and variant.get("mid") and len(problems) > 1):
-            return run_path(problems, x0, options, runner, label, ends_path)
+            return run_path(problems, x0, options, runner, label)
         attempts, x = [], x0
         for j, problem in enumerate(problems):
             last = j == len(problems) - 1
             opts = options if last else {**handover.INTERMEDIATE_OPTIONS, **options, **variant["mid"]}
             if j:
                 opts = {**opts, **handover.CONTINUATION_OPTIONS}
-            runs, solved = run_path([problem], x, opts, runner, label, ends_path or not last)
+            runs, solved = run_path([problem], x, opts, runner, label)
             attempts += runs
             if not solved:
                 return attempts, j

@@ -152,20 +152,18 @@ def relaxed_stage_problem(final: Problem, first: ContactParams, steps: int) -> t
     return problem, step
 
 
-def run_path(
-    problems: Sequence[Problem], x0, options: Mapping[str, Any], runner: Runner, label: str, ends_path: bool = True
-):
+def run_path(problems: Sequence[Problem], x0, options: Mapping[str, Any], runner: Runner, label: str):
     """Solve each problem of a law path in turn by ``runner``, each from the last one's solution
-    (the first from x0, the later ones with ``CONTINUATION_OPTIONS``); every problem but the
-    nominal-law one (the last, where ``ends_path``) with ``INTERMEDIATE_OPTIONS`` beneath. A failed
-    solve is rerun from the same start with each of ``DYNAMIC_FALLBACKS`` while it fails, and the
-    path stops at a law that none solves. Returns (every run, the number of laws solved)."""
+    (the first from x0, the later ones with ``CONTINUATION_OPTIONS``); every problem but the last
+    with ``INTERMEDIATE_OPTIONS`` beneath. A failed solve is rerun from the same start with each of
+    ``DYNAMIC_FALLBACKS`` while it fails, and the path stops at a law that none solves. Returns
+    (every run, the number of laws solved)."""
     attempts: list[NLPResult] = []
     x = x0
     for j, problem in enumerate(problems):
         name = label if len(problems) == 1 else f"{label}, law {j + 1}/{len(problems)}"
         opts = options if j == 0 else {**options, **CONTINUATION_OPTIONS}
-        if j < len(problems) - 1 or not ends_path:
+        if j < len(problems) - 1:
             opts = {**INTERMEDIATE_OPTIONS, **opts}
         for k, rerun in enumerate(({}, *DYNAMIC_FALLBACKS)):
             run = runner.run(problem, x, {**opts, **rerun}, name if k == 0 else f"{name}, rerun {k}")
@@ -189,11 +187,13 @@ def continuation_stages(
     ``setup_time_s``."""
     stats: list[StageStats] = []
     x = x0
-    for runner, part, name, ends_path in (
-        (runners[0], path[:1], "stage 1 (dynamic, relaxed law)", False),
-        (runners[1], path[1:], "stage 2 (dynamic)", True),
+    for runner, part, name in (
+        (runners[0], path[:1], "stage 1 (dynamic, relaxed law)"),
+        (runners[1], path[1:], "stage 2 (dynamic)"),
     ):
-        attempts, solved = run_path(part, x, options, runner, name, ends_path)
+        # the relaxed-law solve is a start as well, though the last (only) law of its part
+        opts = {**INTERMEDIATE_OPTIONS, **options} if not stats else options
+        attempts, solved = run_path(part, x, opts, runner, name)
         st = stage_stats(name, part[-1], attempts, setup_time_s if not stats else 0.0, x)
         if solved < len(part) and len(part) > 1:
             st = dataclasses.replace(st, status=f"{st.status} (law {solved + 1}/{len(part)})", success=False)

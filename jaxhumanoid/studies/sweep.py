@@ -37,11 +37,11 @@ def check_run(spec: Spec, engine: str, workers: int, address: str | None) -> Non
         raise ValueError(f"--workers: expected an integer >= 1, got {workers!r}")
     if address is not None and engine == "local":
         raise ValueError("--address: the local engine takes no address (give --engine dask)")
-    ipopt_options = {
+    tables = {
         "options": {k: v for c in spec.cases if c.solver in ("ipopt", "casadi") for k, v in c.options},
         "stage1_options": {k: v for c in spec.cases for k, v in c.stage1_options},
     }
-    for field, options in ipopt_options.items():
+    for field, options in tables.items():
         if not options:
             continue
         try:
