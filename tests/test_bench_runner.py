@@ -215,10 +215,12 @@ def test_the_runs_guess_reaches_the_robustness_cases_and_the_builtin_solves():
 
 
 def test_bench_settings_pin_the_workloads_options_where_none_are_set():
-    from jaxhumanoid.studies.bench import BENCH_STAGE1_OPTIONS, BENCH_STAGE2_OPTIONS, bench_settings
+    from jaxhumanoid.studies.bench import BENCH_GUESS, BENCH_STAGE1_OPTIONS, BENCH_STAGE2_OPTIONS, bench_settings
 
     pinned = bench_settings(None)
     assert dict(pinned.stage1_options) == BENCH_STAGE1_OPTIONS
     assert dict(pinned.stage2_options) == BENCH_STAGE2_OPTIONS
-    own = bench_settings(SolveSettings(stage1_options={"mu_init": 0.1}, stage2_options={"tol": 1e-6}))
+    assert pinned.guess == BENCH_GUESS != SolveSettings().guess
+    own = bench_settings(SolveSettings(stage1_options={"mu_init": 0.1}, stage2_options={"tol": 1e-6}, guess="both"))
     assert dict(own.stage1_options) == {"mu_init": 0.1} and dict(own.stage2_options) == {"tol": 1e-6}
+    assert own.guess == "both"

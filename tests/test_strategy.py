@@ -406,6 +406,43 @@ def test_stage_one_from_both_guesses_prefers_a_success_and_skips_a_second_run_fr
     assert sol.stages[0].attempts == 1 and sol.stages[0].guess == "inverse_dynamics"
 
 
+@pytest.mark.parametrize(
+    "fraction, status, runs",
+    [
+        (0.05, "Solve_Succeeded", ["static path"]),  # stage 1 left the path: one run
+        (0.2, "Solve_Succeeded", ["static path", "inverse dynamics"]),  # it kept the path's detour
+        (0.05, "Infeasible_Problem_Detected", ["static path", "inverse dynamics"]),  # it failed
+    ],
+)
+def test_auto_guess_runs_the_inverse_dynamics_guess_only_where_the_static_path_was_kept(
+    monkeypatch, fraction, status, runs
+):
+    """``guess="auto"``: stage 1 from the static path; from the inverse-dynamics guess as well
+    where that run ends above ``STAGE1_PATH_KEPT`` of its start's objective, or fails (the static
+    path's fallbacks are cut here to one run, so that its failure is its first run's)."""
+    calls = []
+    monkeypatch.setattr(stage_one, "STAGE1_FALLBACKS", ())
+
+    def fake_run(runner, problem, x0, options, stage):
+        res = _fake_result(problem, x0, iterations=7)
+        if not problem.layout.pseudo_static:
+            return res
+        from_id = "inverse dynamics" in stage
+        calls.append("inverse dynamics" if from_id else "static path")
+        if from_id:
+            return dataclasses.replace(res, objective=0.0)  # the lower one
+        f0 = float(problem.nlp.jitted().f(np.asarray(x0), problem.p))
+        return dataclasses.replace(_fake_result(problem, x0, status, 7), objective=fraction * f0)
+
+    monkeypatch.setattr(Runner, "run", fake_run)
+    sol = solve("T3", "A,F+C,2S", N=20, settings=SolveSettings(N1=10, handover="direct"))
+    assert calls == runs
+    first = sol.stages[0]
+    assert first.guess == ("static_path" if len(runs) == 1 else "inverse_dynamics")
+    assert first.iterations == 7 * len(runs) and first.success
+    assert SolveSettings().guess == "auto"
+
+
 def test_better_stage_one_run_is_the_successful_one_then_the_lower_objective():
     problem = build_problem("T1", "A,F+C,2S", N=5, pseudo_static=True, guess="linear")
 

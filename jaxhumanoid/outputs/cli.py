@@ -435,9 +435,10 @@ def _add_solve_parser(sub) -> None:
         "--guess",
         default=None,
         choices=list(STRATEGY_GUESSES),
-        help="initial guess: inverse_dynamics (default; torques and forces that satisfy its dynamics), linear, "
-        "static_path (postures the body can hold at rest, where a path of them is found), or both (2S: stage 1 "
-        "from inverse_dynamics and from static_path, the lower objective handed over)",
+        help="initial guess: auto (default; 2S: stage 1 from static_path, and from inverse_dynamics as well where "
+        "that run kept the path's detour, the lower objective handed over; 1S: inverse_dynamics), inverse_dynamics "
+        "(torques and forces that satisfy its dynamics), linear, static_path (postures the body can hold at rest, "
+        "where a path of them is found), or both (2S: stage 1 from inverse_dynamics and from static_path)",
     )
     p.add_argument(
         "--handover",

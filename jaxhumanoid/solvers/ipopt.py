@@ -70,7 +70,9 @@ class _Callbacks:
     """
 
     def __init__(self, nlp: NLP, p, progress: IterationCallback | None = None):
-        self.p = p
+        # p on the device once: passed as numpy arrays and Python floats, its leaves would be
+        # converted again at every call (a quarter of a stage-1 callback's dispatch time)
+        self.p = jax.device_put(p)
         self.progress = progress
         jitted = nlp.jitted()
         self._pairs = {"fg": jitted.fg, "dj": jitted.grad_jac}

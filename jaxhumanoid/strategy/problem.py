@@ -18,21 +18,26 @@ from jaxhumanoid.ocp.nlp import NLP, Bounds
 from jaxhumanoid.ocp.scheme import Scheme, parse_scheme
 
 GUESSES = ("linear", "inverse_dynamics", "static_path")
-# The default guess: with u and f from the inverse dynamics, stage 1 and coarse 1S solves of the
-# strength-limited tasks converge where the linear guess ends infeasible (docs/results.md).
+# The default guess of an NLP posed on its own: with u and f from the inverse dynamics, stage 1 and
+# coarse 1S solves of the strength-limited tasks converge where the linear guess ends infeasible
+# (docs/results.md).
 DEFAULT_GUESS = "inverse_dynamics"
-# What a strategy's first stage may start from: one of ``GUESSES``, or ``BOTH``, stage 1 of 2S run
-# from each of ``BOTH_GUESSES`` and the solution of lower objective handed over
-# (``stage_one.stage_one``); an NLP posed on its own takes the first of them.
+# What a strategy's first stage may start from (``stage_one.stage_one``): one of ``GUESSES``;
+# ``BOTH``, stage 1 of 2S run from each of ``BOTH_GUESSES`` and the solution of lower objective
+# handed over; ``AUTO`` (the strategy's default), stage 1 from the static path, and from the
+# inverse-dynamics guess as well only where that run kept the path's detour. An NLP posed on its
+# own (1S) takes the first of ``BOTH_GUESSES``.
 BOTH = "both"
+AUTO = "auto"
 BOTH_GUESSES = ("inverse_dynamics", "static_path")
-STRATEGY_GUESSES = (*GUESSES, BOTH)
+STRATEGY_GUESSES = (*GUESSES, BOTH, AUTO)
+DEFAULT_STRATEGY_GUESS = AUTO
 
 
 def nlp_guess(guess: str) -> str:
     """The initial guess (``GUESSES``) of an NLP posed on its own for a strategy's ``guess``
     (``STRATEGY_GUESSES``)."""
-    return BOTH_GUESSES[0] if guess == BOTH else guess
+    return BOTH_GUESSES[0] if guess in (BOTH, AUTO) else guess
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

@@ -20,7 +20,7 @@ import numpy as np
 from jaxhumanoid.model.foot import FootMargin
 from jaxhumanoid.model.params import ContactParams
 from jaxhumanoid.ocp.scaling import check_scaling
-from jaxhumanoid.strategy.problem import DEFAULT_GUESS, STRATEGY_GUESSES
+from jaxhumanoid.strategy.problem import DEFAULT_STRATEGY_GUESS, STRATEGY_GUESSES
 
 SOLVERS = ("ipopt", "ipm", "casadi")
 # Stage 1's grid when ``N1`` is not given: min(STAGE1_N, N), never finer than the final grid.
@@ -30,8 +30,8 @@ HANDOVERS = ("direct", "continuation")
 # four steps (the same on 7, lower on 2, at most 3e-3 higher on 3) with a median continuation of 55
 # iterations against 79; one step reaches higher optima, up to 8 % (docs/decisions.md).
 CONTINUATION_STEPS = 2
-# The defaults of ``solve`` (docs/results.md measures the alternatives): the inverse-dynamics
-# guess (``problem.DEFAULT_GUESS``), the continuation hand-over, and IPOPT for the relaxed-law
+# The defaults of ``solve`` (docs/results.md measures the alternatives): stage 1 from the static
+# path, checked (``problem.DEFAULT_STRATEGY_GUESS``), the continuation hand-over, and IPOPT for the relaxed-law
 # stages, so that the far-start globalisation is one backend's and ``solver`` decides the
 # continuation to the nominal law, where every backend reaches the same optimum.
 DEFAULT_HANDOVER = "continuation"
@@ -60,10 +60,12 @@ class SolveSettings:
     ``handover.relaxed_stage_problem``).
 
     ``guess``: the initial guess of the first stage (``problem.STRATEGY_GUESSES``): ``"linear"``, the
-    paper's (Sec. II-G); ``"inverse_dynamics"`` (default), the same motion with torques and forces
-    that satisfy its dynamics; ``"static_path"``, postures the body can hold at rest; ``"both"``,
-    stage 1 of 2S from each of the last two, the solution of lower objective handed over
-    (``stage_one.stage_one``; 1S starts from the inverse-dynamics guess).
+    paper's (Sec. II-G); ``"inverse_dynamics"``, the same motion with torques and forces that
+    satisfy its dynamics; ``"static_path"``, postures the body can hold at rest; ``"both"``, stage 1
+    of 2S from each of the last two, the solution of lower objective handed over; ``"auto"``
+    (default), stage 1 of 2S from the static path, and from the inverse-dynamics guess as well
+    where that run kept the path's detour (``stage_one.stage_one``). 1S starts from the
+    inverse-dynamics guess under ``"both"`` and ``"auto"``.
 
     ``handover``: how 2S passes from stage 1 to stage 2 (``HANDOVERS``): ``"direct"``, the paper's,
     stage 2 solved once under the nominal law from stage 1's interpolated primal solution, or
@@ -87,7 +89,7 @@ class SolveSettings:
     stage1_options: Mapping[str, Any] | None = None
     stage2_options: Mapping[str, Any] | None = None
     contact_stage1: ContactParams | None = None
-    guess: str = DEFAULT_GUESS
+    guess: str = DEFAULT_STRATEGY_GUESS
     handover: str = DEFAULT_HANDOVER
     continuation_steps: int = CONTINUATION_STEPS
     stage1_solver: str | None = DEFAULT_STAGE1_SOLVER

@@ -40,6 +40,8 @@ BENCH_STAGE1_OPTIONS = {"mu_init": 1e-2}
 # IPOPT's tol = 1e-8, the relaxed-law and intermediate ones included (``handover.INTERMEDIATE_OPTIONS``
 # loosens those by default), so that the plans the tracking records were made from stay the same.
 BENCH_STAGE2_OPTIONS = {"tol": 1e-8}
+# Stage 1's guess of those plans, for the same reason (``solve``'s default runs from the static path).
+BENCH_GUESS = "inverse_dynamics"
 REPO = pathlib.Path(__file__).resolve().parents[2]
 
 
@@ -112,8 +114,11 @@ def stage1_problem(task: str, N1: int = STAGE1_N) -> tuple[Problem, Problem]:
 
 def bench_settings(settings: SolveSettings | None = None) -> SolveSettings:
     """``settings`` (``SolveSettings()`` when None) with stage 1's options ``BENCH_STAGE1_OPTIONS``
-    and the dynamic stages' ``BENCH_STAGE2_OPTIONS`` where it sets none of its own."""
+    and the dynamic stages' ``BENCH_STAGE2_OPTIONS`` where it sets none of its own, and stage 1's
+    guess ``BENCH_GUESS`` where it keeps the default one."""
     settings = settings or SolveSettings()
+    if settings.guess == SolveSettings.guess:
+        settings = settings.replace(guess=BENCH_GUESS)
     if not settings.stage1_options:
         settings = settings.replace(stage1_options=BENCH_STAGE1_OPTIONS)
     return settings if settings.stage2_options else settings.replace(stage2_options=BENCH_STAGE2_OPTIONS)
