@@ -24,7 +24,7 @@
     q_min_deg = [...]; q_max_deg = [...] # optional, replace the body's ranges
     [weights]  w_u = 1e-3; w_qd = 1.0; w_dqd = 2e-2; w_du = 1e-5  # optional
     [solve]    scheme = "A,F+C,2S"; solver = "ipopt"; N = 60; T = 4.0; N1 = 20    # optional
-               guess = "static_path"       # or "auto" (default), "inverse_dynamics", "linear", "both": the initial guess
+               guess = "static_path"       # or "auto" (default), "inverse_dynamics", "linear", "both": first guess
                handover = "direct"         # or "continuation" (default): stage 1 to stage 2
                continuation_steps = 2      #   laws of the continuation after stage 1's (default 2)
                stage1_solver = "same"      # or "ipopt" (default): the solver of the relaxed-law stages
