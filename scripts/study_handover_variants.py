@@ -18,7 +18,8 @@ A variant is a JSON object:
 
 Each case of ``examples/studies/robustness.toml`` (IPOPT, draws below ``--draws``) is solved under
 every variant in one worker process, so that the variants share its compiled NLPs. With
-``--stage1-only`` each solve stops after stage 1 (its fallbacks included). The record holds one
+``--stage1-only`` each solve stops after stage 1 (its fallbacks included), and its row holds the
+guess of the run handed over and the objective at that guess. The record holds one
 row per case and variant (status, iterations per stage, objective, solve time), the commit and the
 environment.
 """
@@ -40,7 +41,7 @@ _ORIGINAL: dict = {}
 
 
 class StageOneDone(Exception):
-    """Raised after stage 1 in ``--stage1-only`` runs; carries its stats."""
+    """Raised after stage 1 in ``--stage1-only`` runs; carries its stats and its start's objective."""
 
 
 def _original(module, name: str):
@@ -54,6 +55,7 @@ def _patch(variant: dict, stage1_only: bool) -> None:
     from jaxhumanoid.ocp import transcription as tr
     from jaxhumanoid.strategy import handover
     from jaxhumanoid.strategy import solve as solve_mod
+    from jaxhumanoid.strategy import stage_one as stage_one_mod
     from jaxhumanoid.studies import run as run_mod
 
     run_path = _original(handover, "run_path")
@@ -98,7 +100,10 @@ def _patch(variant: dict, stage1_only: bool) -> None:
     def patched_stage_one(relaxed, settings, options, runner):
         stats, Z1 = stage_one(relaxed, settings, options, runner)
         if stage1_only:
-            raise StageOneDone(stats)
+            N1 = settings.stage1_grid(relaxed.layout.N)
+            law = relaxed.p.contact
+            first = stage_one_mod.stage_one_problem(relaxed.task, relaxed.scheme, relaxed, N1, law, stats.guess)
+            raise StageOneDone(stats, stage_one_mod.start_objective(first))
         return stats, Z1
 
     def patched_start(Z1, final):
@@ -145,13 +150,15 @@ def solve_variants(job: tuple[list[str], str, bool]) -> list[dict]:
                 solve_time_s=out["solve_time_s"],
             )
         except StageOneDone as done:
-            st = done.args[0]
+            st, start_objective = done.args
             row.update(
                 success=bool(st.success),
                 iterations=str(st.iterations),
                 total=int(st.iterations),
                 objective=float(st.objective),
                 solve_time_s=float(st.solve_time_s),
+                guess=st.guess,
+                start_objective=start_objective,
             )
         except Exception:  # noqa: BLE001 - a case that raises is a row, the study goes on
             row.update(

@@ -162,7 +162,7 @@ def test_handover_settings_come_from_the_task_file_and_the_command_line_override
     kw = solve_arguments(build_parser().parse_args(["solve", "--task", "T2"]))
     assert kw["settings"] == jh.SolveSettings()
     s = kw["settings"]
-    assert s.handover == "continuation" and s.stage1_solver == "ipopt" and s.guess == "inverse_dynamics"
+    assert s.handover == "continuation" and s.stage1_solver == "ipopt" and s.guess == "auto"
     path = str(EXAMPLES / "paper" / "T1.toml")
     s = solve_arguments(build_parser().parse_args(["solve", "--task-file", path]))["settings"]
     assert s.handover == "direct" and s.stage1_solver == "same" and s.guess == "linear"

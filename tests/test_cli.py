@@ -33,10 +33,11 @@ def test_cli_solve_two_stage_t1(tmp_path):
     assert report["success"] and report["status"] == "Solve_Succeeded"
     # stage 1, the dynamic stage under the relaxed law, the continuation to the nominal law
     assert len(report["iterations"]) == 3 and report["n_variables"] == 2085
-    # the peak loads: torques within the body's strengths, contacts below twice the body weight
+    # the peak loads: torques within the body's strengths; T1 has no contact-force limit, so the
+    # contacts are only bounded by what a person pushing up from the ground plausibly carries
     peaks = report["peaks"]
     assert np.all(np.array(peaks["torque_Nm"]) <= HUMANOID_STRENGTH * (1 + 1e-6))  # IPOPT relaxes bounds by 1e-8
-    assert 0.5 < peaks["contact_normal_force_body_weights"] < 2.0
+    assert 0.5 < peaks["contact_normal_force_body_weights"] < 3.0
     assert report["max_constraint_violation"] < 1e-5  # IPOPT relaxes bounds by 1e-8 relative (160 N m)
     sol = Solution.load(out)
     goal = tasks.get_task("T1").goal

@@ -18,7 +18,7 @@ from jaxhumanoid.strategy.solve import check_arguments
 def test_the_defaults_are_the_package_defaults():
     s = SolveSettings()
     assert s.N1 is None and s.stage1_options is None and s.stage2_options is None and s.contact_stage1 is None
-    assert s.guess == "inverse_dynamics" and s.handover == DEFAULT_HANDOVER == "continuation"
+    assert s.guess == "auto" and s.handover == DEFAULT_HANDOVER == "continuation"
     assert s.continuation_steps == CONTINUATION_STEPS and s.stage1_solver == DEFAULT_STAGE1_SOLVER == "ipopt"
     assert s.foot_margin is None and s.scaling == "none"
     assert s.stage1_grid(100) == 30 and s.stage1_grid(12) == 12 and s.replace(N1=50).stage1_grid(100) == 50

@@ -202,7 +202,7 @@ def _better(a: _Runs, b: _Runs) -> _Runs:
     return b if kb < ka else a
 
 
-def _start_objective(problem: Problem) -> float:
+def start_objective(problem: Problem) -> float:
     """The objective of ``problem`` at its initial guess."""
     return float(problem.nlp.jitted().f(problem.bounds.x0, problem.p))
 
@@ -210,7 +210,7 @@ def _start_objective(problem: Problem) -> float:
 def path_kept(runs: _Runs) -> bool:
     """Whether stage 1 from the static path kept its detour (``STAGE1_PATH_KEPT``), or failed."""
     res = runs.result
-    return not res.success or float(res.objective) > STAGE1_PATH_KEPT * _start_objective(runs.first)
+    return not res.success or float(res.objective) > STAGE1_PATH_KEPT * start_objective(runs.first)
 
 
 def stage_one(
