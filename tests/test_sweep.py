@@ -68,6 +68,8 @@ def test_ids_are_hashes_of_the_parameters():
         ("robustness_static_path_draws10", "robustness_static_path"),
         ("robustness_default_draws10", "robustness"),
         ("robustness_default_draws40", "robustness"),
+        ("robustness_inverse_dynamics_draws10", "robustness"),
+        ("robustness_inverse_dynamics_draws40", "robustness"),
         ("inverse_multistart", "inverse_multistart"),
     ],
 )
