@@ -99,7 +99,6 @@ class NLP:
         warm-up waits for a compilation started earlier instead of starting its own."""
         key = ("precompile", _signature(x), _signature(p))
         if key not in self.cache:
-            p = jax.device_put(p)  # as the IPOPT callbacks pass it: the same dispatch signature
             ev = self.jitted()
             calls = [(ev.fg, (x, p)), (ev.grad_jac, (x, p)), (ev.hess, (x, np.ones(self.m), 1.0, p))]
             pool = concurrent.futures.ThreadPoolExecutor(len(calls) + 1)

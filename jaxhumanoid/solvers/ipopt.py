@@ -70,9 +70,7 @@ class _Callbacks:
     """
 
     def __init__(self, nlp: NLP, p, progress: IterationCallback | None = None):
-        # p on the device once: passed as numpy arrays and Python floats, its leaves would be
-        # converted again at every call (a quarter of a stage-1 callback's dispatch time)
-        self.p = jax.device_put(p)
+        self.p = p
         self.progress = progress
         jitted = nlp.jitted()
         self._pairs = {"fg": jitted.fg, "dj": jitted.grad_jac}
