@@ -31,9 +31,9 @@ HANDOVERS = ("direct", "continuation")
 # iterations against 79; one step reaches higher optima, up to 8 % (docs/decisions.md).
 CONTINUATION_STEPS = 2
 # The defaults of ``solve`` (docs/results.md measures the alternatives): stage 1 from the static
-# path, checked (``problem.DEFAULT_STRATEGY_GUESS``), the continuation hand-over, and IPOPT for the relaxed-law
-# stages, so that the far-start globalisation is one backend's and ``solver`` decides the
-# continuation to the nominal law, where every backend reaches the same optimum.
+# path, checked (``problem.DEFAULT_STRATEGY_GUESS``), the continuation hand-over, and IPOPT for
+# the relaxed-law stages, so that the far-start globalisation is one backend's and ``solver``
+# decides the continuation to the nominal law, where every backend reaches the same optimum.
 DEFAULT_HANDOVER = "continuation"
 DEFAULT_STAGE1_SOLVER = "ipopt"
 STAGE1_SOLVERS = (*SOLVERS, "same", None)

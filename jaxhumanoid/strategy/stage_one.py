@@ -235,22 +235,18 @@ def stage_one(
     t0 = time.perf_counter()
     first = stage_one_problem(task, relaxed.scheme, relaxed, N1, relaxed.p.contact, guesses[0])
     setup = time.perf_counter() - t0
-    if settings.guess == AUTO:
-        # the inverse-dynamics guess only where it is needed: the static path has evaluated the
-        # same inverse dynamics already, so it is made at once
+    auto = settings.guess == AUTO
+    with concurrent.futures.ThreadPoolExecutor(1) as pool:
+        # "both": the other guess is made in a background thread while the first one's runs solve
+        # (the static path compiles its own programs and runs its sweeps, which would otherwise
+        # wait); "auto": only where the first runs kept the path, and then at once (the static path
+        # has evaluated the same inverse dynamics already)
+        ahead = {} if auto else {g: pool.submit(with_guess, first, g) for g in guesses[1:]}
         runs = [_runs_from(first, guesses[0], relaxed, N1, opts, runner, STAGE1_NAME)]
         t0 = time.perf_counter()
-        others_made = [(g, with_guess(first, g)) for g in guesses[1:] if path_kept(runs[0])]
-        setup += time.perf_counter() - t0
-    else:
-        # The other guesses are made in a background thread while the first one's runs solve: the
-        # static path compiles its own programs and runs its sweeps, which would otherwise wait.
-        with concurrent.futures.ThreadPoolExecutor(1) as pool:
-            others = [(g, pool.submit(with_guess, first, g)) for g in guesses[1:]]
-            runs = [_runs_from(first, guesses[0], relaxed, N1, opts, runner, STAGE1_NAME)]
-            t0 = time.perf_counter()
-            others_made = [(g, future.result()) for g, future in others]
-            setup += time.perf_counter() - t0  # the wait for them, where the first runs were quicker
+        wanted = guesses[1:] if not auto or path_kept(runs[0]) else ()
+        others_made = [(g, ahead[g].result() if g in ahead else with_guess(first, g)) for g in wanted]
+        setup += time.perf_counter() - t0  # the wait for them, where the first runs were quicker
     for guess, other in others_made:
         if not np.array_equal(other.bounds.x0, first.bounds.x0):
             name = f"{STAGE1_NAME} from the {guess.replace('_', ' ')} guess"

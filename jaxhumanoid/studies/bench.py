@@ -28,7 +28,7 @@ from jaxhumanoid.runtime import environment
 from jaxhumanoid.solvers.ipopt import solve_ipopt
 from jaxhumanoid.strategy.handover import stage_two_start
 from jaxhumanoid.strategy.posture import reseat_for_contact
-from jaxhumanoid.strategy.problem import Problem, build_problem
+from jaxhumanoid.strategy.problem import DEFAULT_STRATEGY_GUESS, Problem, build_problem
 from jaxhumanoid.strategy.settings import STAGE1_N, SolveSettings
 
 SCHEME = "A,F+C,2S"
@@ -117,7 +117,7 @@ def bench_settings(settings: SolveSettings | None = None) -> SolveSettings:
     and the dynamic stages' ``BENCH_STAGE2_OPTIONS`` where it sets none of its own, and stage 1's
     guess ``BENCH_GUESS`` where it keeps the default one."""
     settings = settings or SolveSettings()
-    if settings.guess == SolveSettings.guess:
+    if settings.guess == DEFAULT_STRATEGY_GUESS:
         settings = settings.replace(guess=BENCH_GUESS)
     if not settings.stage1_options:
         settings = settings.replace(stage1_options=BENCH_STAGE1_OPTIONS)
