@@ -1,6 +1,7 @@
 """The 1S/2S strategies: stage hand-over, the stage-1 fallbacks, convergence on every task (slow)."""
 
 import dataclasses
+import time
 
 import numpy as np
 import pytest
@@ -15,6 +16,7 @@ from jaxhumanoid.strategy.posture import rest_foot_rows
 from jaxhumanoid.strategy.problem import build_problem, with_guess
 from jaxhumanoid.strategy.runner import Runner
 from jaxhumanoid.strategy.settings import SolveSettings
+from jaxhumanoid.strategy import solve as solve_module
 from jaxhumanoid.strategy.solve import solve
 
 DIRECT = SolveSettings(N1=5, guess="linear", handover="direct")
@@ -88,6 +90,29 @@ def test_failed_stage_one_retries_with_the_fallback_and_counts_every_run(monkeyp
     assert 0 < np.max(np.abs(x[4] - x[0])) < 10 * stage_one.STAGE1_RESTART_SIGMA
     assert 0 < np.max(np.abs(x[5] - x[1])) < 10 * stage_one.STAGE1_RESTART_SIGMA
     np.testing.assert_array_equal(x[6], x[4])
+
+
+def test_compile_time_counts_every_set_up_step_of_its_stage(monkeypatch):
+    """The start's seating and the relaxed-law start's re-seating are set-up a cold solve waits
+    for: they count as compile time, the first with the dynamic stage's, the second with stage 1's."""
+    monkeypatch.setattr(Runner, "run", lambda runner, problem, x0, options, stage: _fake_result(problem, x0))
+    monkeypatch.setattr(Runner, "precompile", lambda *a: None)
+
+    def slowed(fn, seconds):
+        def wrapper(*args, **kwargs):
+            time.sleep(seconds)
+            return fn(*args, **kwargs)
+
+        return wrapper
+
+    solve("T1", "A,F+C,2S", N=10, settings=DIRECT)  # compiled and cached: the set-up left is quick
+    monkeypatch.setattr(solve_module, "_seated_task", slowed(solve_module._seated_task, 1.0))
+    monkeypatch.setattr(solve_module, "relaxed_stage_problem", slowed(solve_module.relaxed_stage_problem, 2.0))
+    t0 = time.perf_counter()
+    first, second = solve("T1", "A,F+C,2S", N=10, settings=DIRECT).stages
+    wall = time.perf_counter() - t0
+    assert 2.0 <= first.compile_time_s < 3.0 and 1.0 <= second.compile_time_s < 2.0
+    assert first.compile_time_s + second.compile_time_s <= wall  # nothing counted twice
 
 
 def test_stage_one_of_a_task_with_a_force_limit_falls_back_to_none_and_stage_two_keeps_it(monkeypatch):
