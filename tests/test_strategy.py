@@ -12,11 +12,11 @@ from jaxhumanoid.ocp import transcription as tr
 from jaxhumanoid.ocp.tasks import CONTACT_FORCE_LIMIT, get_task
 from jaxhumanoid.solvers.result import NLPResult
 from jaxhumanoid.strategy import handover, stage_one
+from jaxhumanoid.strategy import solve as solve_module
 from jaxhumanoid.strategy.posture import rest_foot_rows
 from jaxhumanoid.strategy.problem import build_problem, with_guess
 from jaxhumanoid.strategy.runner import Runner
 from jaxhumanoid.strategy.settings import SolveSettings
-from jaxhumanoid.strategy import solve as solve_module
 from jaxhumanoid.strategy.solve import solve
 
 DIRECT = SolveSettings(N1=5, guess="linear", handover="direct")
