@@ -49,7 +49,8 @@ def fake_suite(calls: list[str]) -> Suite:
     return Suite(cases, table, summary, about="A fake suite.")
 
 
-def test_record_and_markdown_of_a_fake_suite(tmp_path):
+def test_record_and_markdown_of_a_fake_suite(tmp_path, monkeypatch):
+    monkeypatch.setenv("JAXHUMANOID_IPOPT_LIBRARY", "/opt/ipopt/libipopt.so")
     calls: list[str] = []
     suites_ = {"fake": fake_suite(calls)}
     settings = BenchSettings(repeats=3, quiet=True)
@@ -59,6 +60,7 @@ def test_record_and_markdown_of_a_fake_suite(tmp_path):
     assert {"commit", "describe", "dirty", "environment", "started", "settings"} <= set(record)
     env = record["environment"]
     assert env["python"] and env["packages"]["jax"] and env["packages"]["numpy"] and "cpu" in env
+    assert env["ipopt_library"] == "/opt/ipopt/libipopt.so"  # what the solves load, loaded here or not
     rec = record["suites"]["fake"]
     assert rec["summary"] == {"cases": ["steady", "drifting"]} and rec["rounds"] == 3
     steady, drifting = rec["cases"]

@@ -26,6 +26,7 @@ from jaxhumanoid.ocp.scheme import parse_scheme
 from jaxhumanoid.ocp.tasks import NO_FORCE_LIMIT, Task, with_force_limit
 from jaxhumanoid.runtime import environment
 from jaxhumanoid.solvers.ipopt import solve_ipopt
+from jaxhumanoid.solvers.ipopt_capi import default_library_path
 from jaxhumanoid.strategy.handover import stage_two_start
 from jaxhumanoid.strategy.posture import reseat_for_contact
 from jaxhumanoid.strategy.problem import DEFAULT_STRATEGY_GUESS, Problem, build_problem
@@ -149,8 +150,11 @@ def git_state(root: pathlib.Path | str = REPO) -> dict[str, Any]:
 
 
 def stamp(results: Mapping[str, Any]) -> dict[str, Any]:
-    """``results`` with the commit, the dirty flag and ``runtime.environment()`` in front."""
-    return {**git_state(), "environment": environment(), **results}
+    """``results`` with the commit, the dirty flag and ``runtime.environment()`` in front, with the
+    IPOPT library the solves load (``ipopt_library``): the process that writes a record need not
+    have loaded it, its workers do."""
+    env = {**environment(), "ipopt_library": default_library_path()}
+    return {**git_state(), "environment": env, **results}
 
 
 def write_record(results: Mapping[str, Any], path: str | pathlib.Path, quiet: bool = False) -> pathlib.Path:
