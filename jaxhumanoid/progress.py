@@ -189,6 +189,12 @@ class IterationLine:
             self._shown = now
             self._write(self._text)
 
+    def status(self, text: str) -> None:
+        """Show ``text`` in place until the next iterate replaces it (on a terminal only): what a
+        solve does before its first iteration, e.g. the set-up and compilation of a cold start."""
+        if self.live:
+            self._write(text)
+
     def _write(self, text: str) -> None:
         if self.quiet:
             return

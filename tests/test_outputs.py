@@ -334,6 +334,7 @@ def test_iteration_line_rewrites_one_line_per_stage():
     now = [0.0]
     live = io.StringIO()
     line = IterationLine(stream=live, live=True, interval=1.0, clock=lambda: now[0])
+    line.status("setting up a long status line")  # shown until the first iterate replaces it
     for k in range(3):
         now[0] += 0.6  # the second call comes 0.6 s after the first: throttled
         line("stage 1", k, 10.0 - k, 1e-3)
@@ -342,17 +343,20 @@ def test_iteration_line_rewrites_one_line_per_stage():
     text = live.getvalue()
     assert text.count("\n") == 2  # each stage ends its line once
     first, second = text.split("\n")[:2]
-    assert first.startswith("\rstage 1  iteration     0") and "iteration     1" not in first
+    assert first.startswith("\rsetting up a long status line\rstage 1  iteration     0")
+    assert "iteration     1" not in first
     assert first.rstrip().endswith("objective  8.000000e+00  infeasibility 1.0e-03")  # the last iterate
     assert "\rstage 2  iteration     0  objective  5.000000e+00  infeasibility 2.0e-04" in second
     log = io.StringIO()  # not a terminal: the final line of each stage only
     plain = IterationLine(stream=log)
+    plain.status("setting up")  # a log gets final lines only
     plain("stage 1", 0, 1.0, 1.0)
     plain("stage 1", 1, 0.5, 0.1)
     plain.close()
     assert log.getvalue() == "stage 1  iteration     1  objective  5.000000e-01  infeasibility 1.0e-01\n"
     quiet = io.StringIO()
     silent = IterationLine(stream=quiet, quiet=True, live=True)
+    silent.status("setting up")
     silent("stage 1", 0, 1.0, 1.0)
     silent.close()
     assert quiet.getvalue() == ""

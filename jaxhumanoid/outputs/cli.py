@@ -158,6 +158,7 @@ def cmd_solve(args) -> int:
     check_arguments(**kwargs)  # as solve checks them, before any work: status 2
     t0 = time.perf_counter()
     line = IterationLine(quiet=args.quiet or args.verbose)
+    line.status("setting up the problems and compiling them (cached for later runs)")
     try:
         with working():
             sol = solve(**kwargs, options=options or None, verbose=args.verbose, progress=line)
