@@ -226,3 +226,25 @@ def test_bench_settings_pin_the_workloads_options_where_none_are_set():
     own = bench_settings(SolveSettings(stage1_options={"mu_init": 0.1}, stage2_options={"tol": 1e-6}, guess="both"))
     assert dict(own.stage1_options) == {"mu_init": 0.1} and dict(own.stage2_options) == {"tol": 1e-6}
     assert own.guess == "both"
+
+
+def test_compile_table_shows_each_variants_spread_from_the_embedded_record():
+    def row(variant, wall, cpu):
+        return {
+            "variant": variant,
+            "compile_wall_s": wall,
+            "compile_cpu_s": cpu,
+            "process_wall_s (wall run)": wall + 8.0,
+            "process_cpu_s (wall run)": cpu + 8.0,
+        }
+
+    rows = [row("a", 13.0, 19.0), row("b", 10.0, 15.0), row("a", 12.0, 20.0), row("a", 14.0, 18.0)]
+    case = {"case": "cold compile", "script": "bench_iteration.py", "args": ["--parts", "compile"], "returncode": 0}
+    minute = {"wall_s": {"median": 60.0, "min": 60.0, "max": 60.0}}
+    rec = {"cases": [{**case, "times": minute, "record": {"compile": rows}}]}
+    lines = suites.compile_table(rec).splitlines()
+    assert lines[0].startswith("- cold compile: `scripts/bench_iteration.py --parts compile` exited 0")
+    assert "| a | 3 | 13.0 (12.0-14.0) | 19.0 (18.0-20.0) | 21.0 (20.0-22.0) | 27.0 (26.0-28.0) |" in lines
+    assert "| b | 1 | 10.0 | 15.0 | 18.0 | 23.0 |" in lines
+    no_record = {"cases": [{**case, "times": {"wall_s": {"median": 1.0, "min": 1.0, "max": 1.0}}, "record": None}]}
+    assert suites.compile_table(no_record).endswith("no record")

@@ -35,7 +35,7 @@ from jaxhumanoid.strategy.solve import solve
 from jaxhumanoid.strategy.taskfile import solve_kwargs
 from jaxhumanoid.studies.bench import REPO
 from jaxhumanoid.studies.compare import Outcome, agreement
-from jaxhumanoid.studies.runner import BenchSettings, Case, Measurement, Suite, fmt_time
+from jaxhumanoid.studies.runner import BenchSettings, Case, Measurement, Suite, fmt_time, spread
 from jaxhumanoid.studies.spec import Case as StudyCase
 from jaxhumanoid.studies.spec import Spec, load_spec
 from jaxhumanoid.studies.sweep import select_cases, sweep
@@ -460,6 +460,36 @@ def external_table(rec: Mapping[str, Any]) -> str:
     return "\n".join(lines)
 
 
+COMPILE_COLUMNS = (
+    ("compile_wall_s", "reported compile, wall s"),
+    ("compile_cpu_s", "reported compile, CPU s"),
+    ("process_wall_s (wall run)", "process, wall s"),
+    ("process_cpu_s (wall run)", "process, CPU s"),
+)
+
+
+def compile_table(rec: Mapping[str, Any]) -> str:
+    """``external_table`` with, per variant of the embedded record, the spread over its runs of the
+    compile time a cold ``jaxhumanoid solve`` reports (wall clock, and CPU time) and of the whole
+    process's wall and CPU time."""
+    lines = [external_table(rec)]
+    for c in rec["cases"]:
+        rows = (c.get("record") or {}).get("compile") or []
+        variants = list(dict.fromkeys(r["variant"] for r in rows))
+        if not variants:
+            continue
+        lines += ["", "| variant | runs | " + " | ".join(h for _, h in COMPILE_COLUMNS) + " |"]
+        lines.append("|---" * (2 + len(COMPILE_COLUMNS)) + "|")
+        for v in variants:
+            mine = [r for r in rows if r["variant"] == v]
+            cells = [
+                fmt_time(spread([r[k] for r in mine if k in r]), 1) if any(k in r for r in mine) else "-"
+                for k, _ in COMPILE_COLUMNS
+            ]
+            lines.append(f"| {v} | {len(mine)} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 SUITES: dict[str, Suite] = {
     "reference": Suite(
         reference_cases,
@@ -496,7 +526,7 @@ SUITES: dict[str, Suite] = {
         lambda s: [
             external_case("cold compile", "bench_iteration.py", ["--parts", "compile", "--runs", str(s.repeats)])
         ],
-        external_table,
+        compile_table,
         repeat=False,
         about="A cold start's compile time (`scripts/bench_iteration.py --parts compile`).",
     ),
