@@ -248,3 +248,25 @@ def test_compile_table_shows_each_variants_spread_from_the_embedded_record():
     assert "| b | 1 | 10.0 | 15.0 | 18.0 | 23.0 |" in lines
     no_record = {"cases": [{**case, "times": {"wall_s": {"median": 1.0, "min": 1.0, "max": 1.0}}, "record": None}]}
     assert suites.compile_table(no_record).endswith("no record")
+
+
+def test_iteration_table_shows_each_stages_time_per_iteration_from_the_embedded_record():
+    def ms(m, lo, hi):
+        return {"median": m, "min": lo, "max": hi}
+
+    entry = {
+        "task": "T1",
+        "variant": "base",
+        "runs": 2,
+        "stage 2 iterations": [456, 456],
+        "stage 2 OverallAlgorithm cpu ms/it": ms(15.9, 15.1, 16.0),
+        "stage 2 Function Evaluations cpu ms/it": ms(4.65, 4.5, 4.7),
+        "stage 2 PDSystemSolverTotal cpu ms/it": ms(10.39, 9.8, 10.45),
+        "stage 1 OverallAlgorithm cpu ms/it": ms(3.47, 3.47, 3.47),
+        "stage 2 OverallAlgorithm wall ms/it": ms(99.0, 99.0, 99.0),  # not a column
+    }
+    case = {"case": "bench_iteration", "script": "bench_iteration.py", "args": ["--tasks", "T1"], "returncode": 0}
+    minute = {"wall_s": {"median": 60.0, "min": 60.0, "max": 60.0}}
+    lines = suites.iteration_table({"cases": [{**case, "times": minute, "record": {"solve": [entry]}}]}).splitlines()
+    row = "| T1 | base | 2 | 456/456 | 15.90 (15.10-16.00) | 4.65 (4.50-4.70) | 10.39 (9.80-10.45) | 3.47 | - |"
+    assert row in lines and not any("99.00" in line for line in lines)

@@ -490,6 +490,35 @@ def compile_table(rec: Mapping[str, Any]) -> str:
     return "\n".join(lines)
 
 
+ITERATION_COLUMNS = (
+    ("stage 2 OverallAlgorithm cpu", "stage 2: all"),
+    ("stage 2 Function Evaluations cpu", "evaluations"),
+    ("stage 2 PDSystemSolverTotal cpu", "KKT solves"),
+    ("stage 1 OverallAlgorithm cpu", "stage 1: all"),
+    ("stage 1 Function Evaluations cpu", "evaluations"),
+)
+
+
+def iteration_table(rec: Mapping[str, Any]) -> str:
+    """``external_table`` with, per task and variant of the embedded record's whole solves, IPOPT's
+    CPU milliseconds per iteration of stage 2 (all, function evaluations, KKT solves) and of stage 1
+    (all, function evaluations): median (min-max) over the runs."""
+    lines = [external_table(rec)]
+    for c in rec["cases"]:
+        entries = (c.get("record") or {}).get("solve") or []
+        if not entries:
+            continue
+        head = " | ".join(h for _, h in ITERATION_COLUMNS)
+        lines += ["", "IPOPT's CPU ms per iteration (its timing statistics), median (min-max) over the runs:", ""]
+        lines.append(f"| task | variant | runs | stage-2 iterations | {head} |")
+        lines.append("|---" * (4 + len(ITERATION_COLUMNS)) + "|")
+        for e in entries:
+            its = "/".join(str(i) for i in e.get("stage 2 iterations", []))
+            cells = " | ".join(fmt_time(e.get(f"{k} ms/it")) for k, _ in ITERATION_COLUMNS)
+            lines.append(f"| {e['task']} | {e['variant']} | {e['runs']} | {its} | {cells} |")
+    return "\n".join(lines)
+
+
 SUITES: dict[str, Suite] = {
     "reference": Suite(
         reference_cases,
@@ -518,7 +547,7 @@ SUITES: dict[str, Suite] = {
         lambda s: [
             external_case("bench_iteration", "bench_iteration.py", ["--tasks", *s.tasks, "--runs", str(s.repeats)])
         ],
-        external_table,
+        iteration_table,
         repeat=False,
         about="An IPOPT iteration's parts and whole solves per iteration (`scripts/bench_iteration.py`).",
     ),
