@@ -267,6 +267,26 @@ def test_iteration_table_shows_each_stages_time_per_iteration_from_the_embedded_
     }
     case = {"case": "bench_iteration", "script": "bench_iteration.py", "args": ["--tasks", "T1"], "returncode": 0}
     minute = {"wall_s": {"median": 60.0, "min": 60.0, "max": 60.0}}
-    lines = suites.iteration_table({"cases": [{**case, "times": minute, "record": {"solve": [entry]}}]}).splitlines()
+    rec = {"cases": [{**case, "times": minute, "record": {"solve": [entry]}}]}
+    lines = suites.iteration_table(rec).splitlines()
     row = "| T1 | base | 2 | 456/456 | 15.90 (15.10-16.00) | 4.65 (4.50-4.70) | 10.39 (9.80-10.45) | 3.47 | - |"
-    assert row in lines and not any("99.00" in line for line in lines)
+    assert f"{row} - | - |" in lines and not any("99.00" in line for line in lines)
+    # on the reference posing: the independent implementation's stage-2 time per iteration and the ratio
+    rec["summary"] = {"reference": {"T1": {"stage2_ms_per_iteration": 14.5}}}
+    assert f"{row} 14.5 | 1.10 |" in suites.iteration_table(rec).splitlines()
+
+
+def test_iteration_suite_runs_on_the_reference_posing_where_the_folder_has_it(tmp_path, monkeypatch):
+    monkeypatch.setattr(suites, "external_case", lambda name, script, args: (script, args))
+    (tmp_path / "T1.toml").write_text("")
+    row = "| T1 | 106 | 224 | 0.3 + 3.2 = 3.5 | 1018.81 | 14.5 ms (function evaluations 36 %) |"
+    (tmp_path / "README.md").write_text(row + "\n")
+    on_ref = BenchSettings(tasks=("T1",), reference_dir=str(tmp_path), repeats=2)
+    built_in = BenchSettings(tasks=("T4",), reference_dir=str(tmp_path))
+    ((script, ref_args),) = suites.iteration_cases(on_ref)
+    ((_, own_args),) = suites.iteration_cases(built_in)
+    assert script == "bench_iteration.py" and ref_args == ["--tasks", "T1", "--runs", "2", "--task-dir", str(tmp_path)]
+    assert own_args == ["--tasks", "T4", "--runs", "3"]
+    summary = suites.iteration_summary([{"case": "bench_iteration", "args": ref_args}], on_ref)
+    assert summary["reference"]["T1"]["stage2_ms_per_iteration"] == 14.5
+    assert suites.iteration_summary([{"case": "bench_iteration", "args": own_args}], built_in)["reference"] == {}

@@ -499,10 +499,28 @@ ITERATION_COLUMNS = (
 )
 
 
+def iteration_cases(settings: BenchSettings) -> list[Case]:
+    """``scripts/bench_iteration.py`` on the reference posing's files where ``--reference-dir``
+    has them (the NLPs the independent implementation's per-iteration figures are for), else on
+    the built-in tasks."""
+    args = ["--tasks", *settings.tasks, "--runs", str(settings.repeats)]
+    if any((pathlib.Path(settings.reference_dir) / f"{t}.toml").is_file() for t in settings.tasks):
+        args += ["--task-dir", settings.reference_dir]
+    return [external_case("bench_iteration", "bench_iteration.py", args)]
+
+
+def iteration_summary(cases: list[dict[str, Any]], settings: BenchSettings) -> dict[str, Any]:
+    """The independent implementation's figures, where the solves were the reference posing's."""
+    on_reference = any("--task-dir" in c.get("args", []) for c in cases)
+    return {"reference": _readme_figures(settings)[1] if on_reference else {}}
+
+
 def iteration_table(rec: Mapping[str, Any]) -> str:
     """``external_table`` with, per task and variant of the embedded record's whole solves, IPOPT's
     CPU milliseconds per iteration of stage 2 (all, function evaluations, KKT solves) and of stage 1
-    (all, function evaluations): median (min-max) over the runs."""
+    (all, function evaluations): median (min-max) over the runs; beside them, on the reference
+    posing, the independent implementation's stage-2 time per iteration (its README) and the ratio."""
+    figures = rec.get("summary", {}).get("reference", {})
     lines = [external_table(rec)]
     for c in rec["cases"]:
         entries = (c.get("record") or {}).get("solve") or []
@@ -510,12 +528,15 @@ def iteration_table(rec: Mapping[str, Any]) -> str:
             continue
         head = " | ".join(h for _, h in ITERATION_COLUMNS)
         lines += ["", "IPOPT's CPU ms per iteration (its timing statistics), median (min-max) over the runs:", ""]
-        lines.append(f"| task | variant | runs | stage-2 iterations | {head} |")
-        lines.append("|---" * (4 + len(ITERATION_COLUMNS)) + "|")
+        lines.append(f"| task | variant | runs | stage-2 iterations | {head} | independent, stage 2 | ratio |")
+        lines.append("|---" * (6 + len(ITERATION_COLUMNS)) + "|")
         for e in entries:
             its = "/".join(str(i) for i in e.get("stage 2 iterations", []))
             cells = " | ".join(fmt_time(e.get(f"{k} ms/it")) for k, _ in ITERATION_COLUMNS)
-            lines.append(f"| {e['task']} | {e['variant']} | {e['runs']} | {its} | {cells} |")
+            ref = figures.get(e["task"], {}).get("stage2_ms_per_iteration")
+            ours = e.get(f"{ITERATION_COLUMNS[0][0]} ms/it")
+            ratio = f"{ours['median'] / ref:.2f}" if ref and ours else "-"
+            lines.append(f"| {e['task']} | {e['variant']} | {e['runs']} | {its} | {cells} | {ref or '-'} | {ratio} |")
     return "\n".join(lines)
 
 
@@ -544,12 +565,12 @@ SUITES: dict[str, Suite] = {
         about="The robustness study (perturbed weights, law, grid, horizon and start), once.",
     ),
     "iteration": Suite(
-        lambda s: [
-            external_case("bench_iteration", "bench_iteration.py", ["--tasks", *s.tasks, "--runs", str(s.repeats)])
-        ],
+        iteration_cases,
         iteration_table,
+        iteration_summary,
         repeat=False,
-        about="An IPOPT iteration's parts and whole solves per iteration (`scripts/bench_iteration.py`).",
+        about="An IPOPT iteration's parts and whole solves per iteration (`scripts/bench_iteration.py`), on the "
+        "reference posing's files where `--reference-dir` has them.",
     ),
     "compile": Suite(
         lambda s: [
