@@ -1,7 +1,8 @@
 """Benchmark: what one IPOPT iteration of the A,F+C,2S solve costs, and what a cold start compiles.
 
     OMP_NUM_THREADS=1 python scripts/bench_iteration.py [--tasks T1 T4] [--task-dir DIR] [--runs 3]
-        [--parts evals kkt solve compile] [--variant NAME[,env:KEY=VALUE][,opt:KEY=VALUE][,lib:PATH|casadi] ...]
+        [--parts evals kkt solve compile]
+        [--variant NAME[,env:KEY=VALUE][,opt:KEY=VALUE][,lib:PATH|casadi][,sweeps:S][,solver:S] ...]
         [--kkt-iterations 60] [--start-dir DIR] [--out results/bench_iteration.json]
 
 Each part is timed in CPU seconds (steady on a shared machine) and wall seconds:
@@ -23,7 +24,8 @@ Each part is timed in CPU seconds (steady on a shared machine) and wall seconds:
 A variant is a name and settings: ``env:KEY=VALUE`` sets an environment variable of the processes
 it starts (``OPENBLAS_CORETYPE``; ``PYTHONPATH`` of another checkout runs that code),
 ``opt:KEY=VALUE`` an IPOPT option of every stage, ``lib:PATH`` the IPOPT library (``lib:casadi``
-the casadi wheel's), ``sweeps:joint|grouped`` the derivative sweeps (kkt part). ``--task-dir`` reads ``DIR/T1.toml`` ... (e.g. the reference posing of
+the casadi wheel's), ``sweeps:joint|grouped`` the derivative sweeps (kkt part), ``solver:ipm`` the
+command line's ``--solver`` (compile part). ``--task-dir`` reads ``DIR/T1.toml`` ... (e.g. the reference posing of
 another implementation) instead of the built-in tasks. The record (``--out``) carries the git
 commit and the environment (``jaxhumanoid.runtime.environment``). This script imports no other
 script.
@@ -73,24 +75,25 @@ def casadi_ipopt_library() -> str:
 
 def _parse_variant(text: str) -> dict:
     name, *specs = text.split(",")
-    env, opts, lib, sweeps = {}, {}, None, None
+    env, opts, lib, sweeps, solver = {}, {}, None, None, None
     for spec in specs:
         kind, _, pair = spec.partition(":")
         if kind == "lib":
             lib = casadi_ipopt_library() if pair == "casadi" else pair
             continue
-        if kind == "sweeps":
-            sweeps = pair
+        if kind in ("sweeps", "solver"):
+            sweeps, solver = (pair, solver) if kind == "sweeps" else (sweeps, pair)
             continue
         key, _, val = pair.partition("=")
         if kind not in ("env", "opt") or not key or not _:
             raise SystemExit(
-                f"--variant {text!r}: expected NAME[,env:KEY=VALUE][,opt:KEY=VALUE][,lib:PATH|casadi][,sweeps:joint|grouped]"
+                f"--variant {text!r}: expected NAME[,env:KEY=VALUE][,opt:KEY=VALUE][,lib:PATH|casadi]"
+                "[,sweeps:joint|grouped][,solver:ipopt|ipm|casadi]"
             )
         (env if kind == "env" else opts)[key] = val
     if lib:
         env["JAXHUMANOID_IPOPT_LIBRARY"] = lib
-    return {"name": name, "env": env, "options": opts, "library": lib, "sweeps": sweeps}
+    return {"name": name, "env": env, "options": opts, "library": lib, "sweeps": sweeps, "solver": solver}
 
 
 def _solve_kwargs(task: str, task_dir: str | None) -> dict:
@@ -253,6 +256,7 @@ def part_compile(variants, runs, task: str = "T1") -> list[dict]:
                 with tempfile.TemporaryDirectory() as cache, tempfile.TemporaryDirectory() as out:
                     env = {**var["env"], "JAXHUMANOID_CACHE": cache}
                     extra = [a for k, v in var["options"].items() for a in ("--ipopt-option", f"{k}={v}")]
+                    extra += ["--solver", var["solver"]] if var.get("solver") else []
                     if clock == "wall":
                         args = [
                             sys.executable,
@@ -470,7 +474,7 @@ def main():
     ap.add_argument("--kkt-iterations", type=int, default=60, help="iterations of each run of the kkt part")
     ap.add_argument("--start-dir", default=None, help="kkt part: read (or write) each task's start there")
     ap.add_argument(
-        "--variant", action="append", default=None, help="NAME[,env:KEY=VALUE][,opt:KEY=VALUE] (repeatable)"
+        "--variant", action="append", default=None, help="NAME[,env:KEY=VALUE][,opt:KEY=VALUE][,solver:S] (repeatable)"
     )
     ap.add_argument("--out", default="results/bench_iteration.json")
     ap.add_argument("--worker-solve", default=None, help=argparse.SUPPRESS)

@@ -38,3 +38,6 @@ def test_parses_timing_statistics_and_variants():
     var = bench._parse_variant("amd,opt:mumps_pivot_order=0,env:OPENBLAS_CORETYPE=SkylakeX,lib:/x/libipopt.so")
     assert var["options"] == {"mumps_pivot_order": "0"} and var["library"] == "/x/libipopt.so"
     assert var["env"] == {"OPENBLAS_CORETYPE": "SkylakeX", "JAXHUMANOID_IPOPT_LIBRARY": "/x/libipopt.so"}
+    ipm = bench._parse_variant("ipm,solver:ipm,sweeps:joint")
+    assert (ipm["name"], ipm["solver"], ipm["sweeps"], ipm["options"]) == ("ipm", "ipm", "joint", {})
+    assert bench._parse_variant("plain")["solver"] is None

@@ -574,11 +574,15 @@ SUITES: dict[str, Suite] = {
     ),
     "compile": Suite(
         lambda s: [
-            external_case("cold compile", "bench_iteration.py", ["--parts", "compile", "--runs", str(s.repeats)])
+            external_case(
+                "cold compile",
+                "bench_iteration.py",
+                ["--parts", "compile", "--runs", str(s.repeats), "--variant", "ipopt", "--variant", "ipm,solver:ipm"],
+            )
         ],
         compile_table,
         repeat=False,
-        about="A cold start's compile time (`scripts/bench_iteration.py --parts compile`).",
+        about="A cold start's compile time with IPOPT and with the IPM (`scripts/bench_iteration.py --parts compile`).",
     ),
 }
 DEFAULT_SUITES = ("reference", "table2", "agreement")
