@@ -75,14 +75,15 @@ def casadi_ipopt_library() -> str:
 
 def _parse_variant(text: str) -> dict:
     name, *specs = text.split(",")
-    env, opts, lib, sweeps, solver = {}, {}, None, None, None
+    env, opts, lib = {}, {}, None
+    named: dict[str, str | None] = {"sweeps": None, "solver": None}
     for spec in specs:
         kind, _, pair = spec.partition(":")
         if kind == "lib":
             lib = casadi_ipopt_library() if pair == "casadi" else pair
             continue
-        if kind in ("sweeps", "solver"):
-            sweeps, solver = (pair, solver) if kind == "sweeps" else (sweeps, pair)
+        if kind in named:
+            named[kind] = pair
             continue
         key, _, val = pair.partition("=")
         if kind not in ("env", "opt") or not key or not _:
@@ -93,7 +94,7 @@ def _parse_variant(text: str) -> dict:
         (env if kind == "env" else opts)[key] = val
     if lib:
         env["JAXHUMANOID_IPOPT_LIBRARY"] = lib
-    return {"name": name, "env": env, "options": opts, "library": lib, "sweeps": sweeps, "solver": solver}
+    return {"name": name, "env": env, "options": opts, "library": lib, **named}
 
 
 def _solve_kwargs(task: str, task_dir: str | None) -> dict:

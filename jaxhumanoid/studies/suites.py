@@ -468,24 +468,24 @@ COMPILE_COLUMNS = (
 )
 
 
+def _embedded(rec: Mapping[str, Any], part: str) -> list[list[dict[str, Any]]]:
+    """The non-empty ``part`` of each case's embedded script record (e.g. ``"compile"``)."""
+    parts = [(c.get("record") or {}).get(part) or [] for c in rec["cases"]]
+    return [p for p in parts if p]
+
+
 def compile_table(rec: Mapping[str, Any]) -> str:
     """``external_table`` with, per variant of the embedded record, the spread over its runs of the
     compile time a cold ``jaxhumanoid solve`` reports (wall clock, and CPU time) and of the whole
     process's wall and CPU time."""
     lines = [external_table(rec)]
-    for c in rec["cases"]:
-        rows = (c.get("record") or {}).get("compile") or []
-        variants = list(dict.fromkeys(r["variant"] for r in rows))
-        if not variants:
-            continue
+    for rows in _embedded(rec, "compile"):
         lines += ["", "| variant | runs | " + " | ".join(h for _, h in COMPILE_COLUMNS) + " |"]
         lines.append("|---" * (2 + len(COMPILE_COLUMNS)) + "|")
-        for v in variants:
+        for v in dict.fromkeys(r["variant"] for r in rows):
             mine = [r for r in rows if r["variant"] == v]
-            cells = [
-                fmt_time(spread([r[k] for r in mine if k in r]), 1) if any(k in r for r in mine) else "-"
-                for k, _ in COMPILE_COLUMNS
-            ]
+            values = [[r[k] for r in mine if k in r] for k, _ in COMPILE_COLUMNS]
+            cells = [fmt_time(spread(vals), 1) if vals else "-" for vals in values]
             lines.append(f"| {v} | {len(mine)} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -522,10 +522,7 @@ def iteration_table(rec: Mapping[str, Any]) -> str:
     posing, the independent implementation's stage-2 time per iteration (its README) and the ratio."""
     figures = rec.get("summary", {}).get("reference", {})
     lines = [external_table(rec)]
-    for c in rec["cases"]:
-        entries = (c.get("record") or {}).get("solve") or []
-        if not entries:
-            continue
+    for entries in _embedded(rec, "solve"):
         head = " | ".join(h for _, h in ITERATION_COLUMNS)
         lines += ["", "IPOPT's CPU ms per iteration (its timing statistics), median (min-max) over the runs:", ""]
         lines.append(f"| task | variant | runs | stage-2 iterations | {head} | independent, stage 2 | ratio |")
