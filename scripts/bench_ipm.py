@@ -103,8 +103,11 @@ IPOPT_TIMERS = ("OverallAlgorithm", "PDSystemSolverTotal", "Function Evaluations
 
 
 def ipopt_counts(log: str) -> dict:
-    """IPOPT's evaluation counts and CPU seconds of its timers, read from its log."""
-    out: dict = {}
+    """IPOPT's evaluation counts, CPU seconds of its timers and the iterations whose KKT matrix it
+    regularised (its iteration lines with a value under lg(rg): at least two factorisations each,
+    as the IPM's ``regularized_iterations``), read from its log."""
+    lines = re.findall(r"^\s*(\d+)r?\s+\S+\s+\S+\s+\S+\s+\S+\s+\S+\s+(\S+)\s", log, re.M)
+    out: dict = {"regularized_iterations": sum(rg != "-" for k, rg in lines if int(k) > 0)}
     for key, text in IPOPT_COUNTS.items():
         m = re.search(rf"Number of {text}\s*=\s*(\d+)", log)
         out[key] = int(m.group(1)) if m else None
@@ -178,7 +181,7 @@ def print_stage2(res: dict) -> None:
     print(
         f"{'problem':8s} {'IPM its':>7s} {'IPOPT its':>9s} | {'ms/it CPU: IPM':>14s} {'IPM cli':>7s} {'IPOPT':>6s}"
         f" {'ratio':>5s} {'cli':>5s} | {'wall ratio':>10s} | {'fact/it':>7s} {'trials/it':>9s} {'IPOPT f/it':>10s}"
-        f" {'soc':>4s} {'resto':>5s} | {'rel obj':>8s}"
+        f" {'soc':>4s} {'resto':>5s} {'reg. its IPM/IPOPT':>18s} | {'rel obj':>8s}"
     )
     for name, r in res.items():
         a, c, cl = r["ipm"], r["ipopt"], r["ipm_cli"]
@@ -188,7 +191,8 @@ def print_stage2(res: dict) -> None:
             f" {cl['cpu_ms_per_iteration_median']:7.1f} {c['cpu_ms_per_iteration_median']:6.1f}"
             f" {r['ratio_ipm_over_ipopt_cpu']:5.2f} {r['ratio_ipm_cli_over_ipopt_cpu']:5.2f} |"
             f" {r['ratio_ipm_over_ipopt_wall']:10.2f} | {a['factorizations'] / k:7.2f} {a['trial_points'] / k:9.2f}"
-            f" {(c['f'] or 0) / kc:10.2f} {a['soc_steps']:4d} {a['restoration_iterations']:5d} |"
+            f" {(c['f'] or 0) / kc:10.2f} {a['soc_steps']:4d} {a['restoration_iterations']:5d}"
+            f" {a['regularized_iterations']:>9d}/{c['regularized_iterations']:<8d} |"
             f" {r['objective_rel_diff']:8.1e}"
         )
 
