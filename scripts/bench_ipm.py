@@ -27,6 +27,8 @@ Problems: a built-in task key (``T1``..``T4``, as posed) or ``ref:T1`` .. for
 - ``spread``: stage 1 of the benchmark tasks by IPOPT under options that change only the
   rounding of its linear solves, and by the IPM (the spread of IPOPT's own iteration counts).
 - ``batch``: a ``vmap`` batch of T1 stage-1 problems against the same problems one by one.
+- ``pivots``: how the IPM's factorisations pivot over a whole stage-2 solve of each problem: the
+  pivot blocks on the quasi-definite fast path, and those eigen-decomposed by the inertia found.
 
 Prints a table per part and writes a JSON record (``--out``) with the git commit and the
 environment (``jaxhumanoid.runtime.environment``).
@@ -38,7 +40,9 @@ import jaxhumanoid.runtime  # noqa: F401  (first: it pins the BLAS kernels befor
 
 # isort: split
 import argparse
+import collections
 import dataclasses
+import functools
 import json
 import os
 import pathlib
@@ -357,6 +361,48 @@ def batch_throughput(batch: int) -> dict:
     }
 
 
+# the pivot blocks counted by ``pivot_census``; one counter for the process, since problems of one
+# layout share the IPM's compiled programs and with them the callback traced first
+PIVOTS: collections.Counter = collections.Counter()
+
+
+def _tally(info, nc):
+    nneg, nzero, path = (int(v) for v in info)
+    if path != 2:
+        PIVOTS["fast"] += 1
+    else:
+        PIVOTS["eig_zero" if nzero else ("eig_more_negative" if nneg > nc else "eig_fast_inertia")] += 1
+
+
+def pivot_census(name: str, ref_dir: pathlib.Path) -> dict:
+    """How the IPM's factorisations pivot over a whole stage-2 solve (``stage2_start``, the command
+    line's stepped programs): the pivot blocks on the quasi-definite fast path and those
+    eigen-decomposed, the latter split by the inertia the decomposition finds (the fast path's
+    (nbx, nc, 0), more negative eigenvalues, zero ones). Each block is counted by a
+    ``jax.debug.callback`` in the block loop (``elimination._eliminate`` wrapped here), which
+    changes no value; the solve compiles its own programs for it."""
+    from jaxhumanoid.solvers.ipm.kkt import elimination
+
+    eliminate = elimination._eliminate
+
+    def counted(st, sc, k, C, X, diag_r, fast, rel_zero_tol):
+        out = eliminate(st, sc, k, C, X, diag_r, fast, rel_zero_tol)
+        jax.debug.callback(functools.partial(_tally, nc=st.nb - st.nbx), out[5])
+        return out
+
+    problem, x0, opts = stage2_start(name, ref_dir)
+    PIVOTS.clear()
+    with mock.patch.object(elimination, "_eliminate", counted):
+        r = solve_ipm(problem.nlp, problem.p, problem.bounds, x0=x0, options=opts, progress=lambda k, f, inf: None)
+    out = {"iterations": int(r.iterations), "objective": float(r.objective), **ipm_counts(r), **PIVOTS}
+    print(
+        f"{name}: {out['iterations']} iterations, {out['factorizations']} factorisations; pivot blocks: "
+        f"{PIVOTS['fast']} fast, eigen-decomposed {PIVOTS['eig_fast_inertia']} with the fast path's inertia, "
+        f"{PIVOTS['eig_more_negative']} with more negative eigenvalues, {PIVOTS['eig_zero']} singular"
+    )
+    return out
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--problems", nargs="+", default=["T1", "T2", "T3", "T4", "ref:T1", "ref:T2", "ref:T3", "ref:T4"])
@@ -370,7 +416,7 @@ def main():
         "--parts",
         nargs="+",
         default=["stage2", "compile"],
-        choices=["stage2", "compile", "programs", "spread", "batch"],
+        choices=["stage2", "compile", "programs", "spread", "batch", "pivots"],
     )
     ap.add_argument("--spread-tasks", nargs="+", default=["T1", "T2", "T3", "T4"])
     ap.add_argument("--batch", type=int, default=32)
@@ -388,6 +434,8 @@ def main():
         for name in args.problems:
             res[name] = stage2_case(name, args.runs, args.ref_dir)
         print_stage2(res)
+    if "pivots" in args.parts:
+        record["pivots"] = {name: pivot_census(name, args.ref_dir) for name in args.problems}
     if "spread" in args.parts:
         record["stage1_rounding_spread"] = {t: rounding_spread(t) for t in args.spread_tasks}
     if "batch" in args.parts:
