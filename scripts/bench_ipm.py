@@ -366,28 +366,42 @@ def batch_throughput(batch: int) -> dict:
 PIVOTS: collections.Counter = collections.Counter()
 
 
-def _tally(info, nc):
+# larger gammas of the fast path (``pivot.quasidefinite_block``) tried on each eigen-decomposed block
+RETRY_GAMMAS = (100.0, 300.0, 1000.0, 3000.0, 10000.0)
+
+
+def _tally(info, certified, nc):
     nneg, nzero, path = (int(v) for v in info)
     if path != 2:
         PIVOTS["fast"] += 1
-    else:
-        PIVOTS["eig_zero" if nzero else ("eig_more_negative" if nneg > nc else "eig_fast_inertia")] += 1
+        return
+    kind = "eig_zero" if nzero else ("eig_more_negative" if nneg > nc else "eig_fast_inertia")
+    PIVOTS[kind] += 1
+    for gamma, ok in zip(RETRY_GAMMAS, certified, strict=True):
+        if bool(ok):
+            PIVOTS[f"{kind}_certified_by_gamma_{gamma:g}"] += 1
+            break
 
 
 def pivot_census(name: str, ref_dir: pathlib.Path) -> dict:
     """How the IPM's factorisations pivot over a whole stage-2 solve (``stage2_start``, the command
     line's stepped programs): the pivot blocks on the quasi-definite fast path and those
     eigen-decomposed, the latter split by the inertia the decomposition finds (the fast path's
-    (nbx, nc, 0), more negative eigenvalues, zero ones). Each block is counted by a
+    (nbx, nc, 0), more negative eigenvalues, zero ones) and by the smallest of ``RETRY_GAMMAS`` at
+    which the fast path would have certified it. Each block is counted by a
     ``jax.debug.callback`` in the block loop (``elimination._eliminate`` wrapped here), which
     changes no value; the solve compiles its own programs for it."""
     from jaxhumanoid.solvers.ipm.kkt import elimination
+    from jaxhumanoid.solvers.ipm.kkt.pivot import quasidefinite_block
+    from jaxhumanoid.solvers.ipm.kkt.structure import static_index2
 
     eliminate = elimination._eliminate
 
     def counted(st, sc, k, C, X, diag_r, fast, rel_zero_tol):
         out = eliminate(st, sc, k, C, X, diag_r, fast, rel_zero_tol)
-        jax.debug.callback(functools.partial(_tally, nc=st.nb - st.nbx), out[5])
+        Dk = elimination._filled_block(sc.A[k], C, static_index2(st.b_rows, st.b_rows))
+        certified = jnp.stack([quasidefinite_block(Dk, st.nbx, gamma=g)[1] for g in RETRY_GAMMAS])
+        jax.debug.callback(functools.partial(_tally, nc=st.nb - st.nbx), out[5], certified)
         return out
 
     problem, x0, opts = stage2_start(name, ref_dir)
