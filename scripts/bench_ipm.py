@@ -61,10 +61,14 @@ from jaxhumanoid.runtime import enable_compilation_cache, environment
 from jaxhumanoid.solvers.ipm import batch_solve_ipm, solve_ipm
 from jaxhumanoid.solvers.ipopt import solve_ipopt
 from jaxhumanoid.strategy.handover import STAGE2_DEFAULTS
-from jaxhumanoid.strategy.runner import Runner
-from jaxhumanoid.strategy.solve import solve
 from jaxhumanoid.strategy.taskfile import load_task_file
-from jaxhumanoid.studies.bench import BENCH_STAGE1_OPTIONS, bench_settings, git_state, stage1_problem
+from jaxhumanoid.studies.bench import (
+    BENCH_STAGE1_OPTIONS,
+    bench_settings,
+    git_state,
+    recorded_solve,
+    stage1_problem,
+)
 
 SCHEME = "A,F+C,2S"
 REPO = pathlib.Path(__file__).resolve().parents[1]
@@ -81,18 +85,10 @@ def solve_kwargs_of(name: str, ref_dir: pathlib.Path) -> dict:
 def stage2_start(name: str, ref_dir: pathlib.Path):
     """(problem, x0, options) of the last solve of a direct-hand-over 2S solve by IPOPT: stage 2
     from IPOPT's stage 1, with the options that stage gets."""
-    calls = []
-    run = Runner.run
-
-    def record(runner, problem, x0, options, stage):
-        calls.append((problem, np.array(x0, dtype=float), dict(options)))
-        return run(runner, problem, x0, options, stage)
-
     kw = solve_kwargs_of(name, ref_dir)
     settings = bench_settings(kw.get("settings")).replace(stage1_solver="ipopt", handover="direct")
-    with mock.patch.object(Runner, "run", record):
-        solve(**{**kw, "solver": "ipopt", "settings": settings})
-    return calls[-1]
+    _, runs = recorded_solve(**{**kw, "solver": "ipopt", "settings": settings})
+    return runs[-1].problem, runs[-1].x0, runs[-1].options
 
 
 # ----------------------------------------------------------------------------- stage 2

@@ -22,36 +22,26 @@ import jaxhumanoid.runtime  # noqa: F401  (first: it pins the BLAS kernels befor
 # isort: split
 import argparse
 import pathlib
-from unittest import mock
 
 import numpy as np
 
-from jaxhumanoid.strategy.runner import Runner
-from jaxhumanoid.strategy.solve import solve
 from jaxhumanoid.strategy.taskfile import load_task_file
-from jaxhumanoid.studies.bench import write_record
+from jaxhumanoid.studies.bench import recorded_solve, write_record
 from jaxhumanoid.studies.suites import reference_draw_weights
 
 
 def stage_runs(kwargs: dict) -> dict:
     """``solve(**kwargs)``: its stage-1 runs (iterations, objective) and its last stage."""
-    runs: list = []
-    run = Runner.run
-
-    def record(runner, problem, x0, options, stage):
-        res = run(runner, problem, x0, options, stage)
-        runs.append((stage, res))
-        return res
-
-    with mock.patch.object(Runner, "run", record):
-        sol = solve(**kwargs)
-    last = runs[-1][1]
+    sol, runs = recorded_solve(**kwargs)
+    last = runs[-1].result
     return {
-        "stage1": [[int(r.iterations), float(r.objective)] for name, r in runs if name.startswith("stage 1")],
+        "stage1": [
+            [int(r.result.iterations), float(r.result.objective)] for r in runs if r.stage.startswith("stage 1")
+        ],
         "stage2_iterations": int(last.iterations),
         "status": last.status,
         "objective": float(sol.objective),
-        "total_iterations": int(sum(r.iterations for _, r in runs)),
+        "total_iterations": int(sum(r.result.iterations for r in runs)),
     }
 
 

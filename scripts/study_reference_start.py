@@ -31,7 +31,6 @@ import jaxhumanoid.runtime  # noqa: F401  (first: it pins the BLAS kernels befor
 # isort: split
 import argparse
 import pathlib
-from unittest import mock
 
 import numpy as np
 import scipy.sparse as sp
@@ -41,10 +40,8 @@ from jaxhumanoid.ocp import transcription as tr
 from jaxhumanoid.solvers.ipopt import solve_ipopt
 from jaxhumanoid.solvers.result import NLPResult
 from jaxhumanoid.strategy.handover import interpolate_full
-from jaxhumanoid.strategy.runner import Runner
-from jaxhumanoid.strategy.solve import solve
 from jaxhumanoid.strategy.taskfile import load_task_file
-from jaxhumanoid.studies.bench import write_record
+from jaxhumanoid.studies.bench import recorded_solve, write_record
 from jaxhumanoid.studies.suites import SAME_OPTIMUM_RTOL, reference_draw_weights
 
 WARM = {
@@ -56,21 +53,6 @@ WARM = {
     "warm_start_slack_bound_frac": 1e-6,
 }
 VARIANTS = ("as_solved", "multipliers", "multipliers_rescaled", "projected")
-
-
-def recorded_solve(kwargs: dict) -> list[tuple[str, object, np.ndarray, dict, NLPResult]]:
-    """``solve(**kwargs)`` with every stage's (name, problem, x0, options, result) recorded."""
-    calls: list = []
-    run = Runner.run
-
-    def record(runner, problem, x0, options, stage):
-        res = run(runner, problem, x0, options, stage)
-        calls.append((stage, problem, np.array(x0, dtype=float), dict(options), res))
-        return res
-
-    with mock.patch.object(Runner, "run", record):
-        solve(**kwargs)
-    return calls
 
 
 def carried_multipliers(
@@ -124,9 +106,10 @@ def projected(problem, x0: np.ndarray, steps: int = 15) -> tuple[np.ndarray, lis
 
 def study_case(path: pathlib.Path, draw: int) -> dict:
     kwargs = load_task_file(path).as_solve_kwargs()
-    calls = recorded_solve({**kwargs, "weights": reference_draw_weights(kwargs, draw)})
-    _, prob1, _, _, res1 = [c for c in calls if c[0].startswith("stage 1")][-1]
-    name, prob2, x0, options, res2 = calls[-1]
+    _, runs = recorded_solve(**kwargs, weights=reference_draw_weights(kwargs, draw))
+    last1 = [r for r in runs if r.stage.startswith("stage 1")][-1]
+    prob1, res1 = last1.problem, last1.result
+    name, prob2, x0, options, res2 = runs[-1]
     assert name.startswith("stage 2"), name
     nlp, p, b = prob2.nlp, prob2.p, prob2.bounds
     warm = {

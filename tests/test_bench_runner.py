@@ -290,3 +290,21 @@ def test_iteration_suite_runs_on_the_reference_posing_where_the_folder_has_it(tm
     summary = suites.iteration_summary([{"case": "bench_iteration", "args": ref_args}], on_ref)
     assert summary["reference"]["T1"]["stage2_ms_per_iteration"] == 14.5
     assert suites.iteration_summary([{"case": "bench_iteration", "args": own_args}], built_in)["reference"] == {}
+
+
+def test_recorded_solve_gives_every_nlp_solve_of_the_strategy():
+    # stage 2 solved again from what was recorded reproduces the strategy's own last solve
+    from jaxhumanoid.solvers.ipopt import solve_ipopt
+    from jaxhumanoid.studies.bench import recorded_solve
+
+    settings = SolveSettings(N1=5, guess="linear", handover="direct")
+    sol, runs = recorded_solve(task="T1", scheme="A,F+C,2S", N=10, settings=settings)
+    # each stage's runs (its fallbacks and reruns included) add up to the stage's statistics
+    for st in sol.stages:
+        mine = [r for r in runs if r.stage.split(" (")[0] == st.name.split(" (")[0]]
+        assert mine and sum(r.result.iterations for r in mine) == st.iterations
+    assert len(runs) >= len(sol.stages) and runs[-1].stage.startswith("stage 2")
+    last = runs[-1]
+    again = solve_ipopt(last.problem.nlp, last.problem.p, last.problem.bounds, x0=last.x0, options=last.options)
+    assert again.iterations == last.result.iterations
+    np.testing.assert_array_equal(again.x, last.result.x)

@@ -5,6 +5,8 @@ benchmarks' workloads, and records that carry the commit and the environment.
   several are compared, so that a varying load on a shared machine affects all alike);
 - ``bench_task``, ``stage1_problem``, ``stage2_warm_start``: the built-in tasks as the benchmarks
   pose them, and the two NLPs of A,F+C,2S with the stage-2 start that 2S gives IPOPT;
+- ``recorded_solve``: a ``solve`` with every NLP solve of its strategy recorded (problem, start,
+  options, result), for studies that solve one of them again;
 - ``git_state``, ``write_record``, ``show_table``: a JSON record stamped with the commit (and
   whether the work tree had changes) and ``runtime.environment()``, and a markdown table.
 """
@@ -16,7 +18,8 @@ import pathlib
 import subprocess
 import time
 from collections.abc import Callable, Mapping
-from typing import Any
+from typing import Any, NamedTuple
+from unittest import mock
 
 import jax
 import numpy as np
@@ -27,10 +30,14 @@ from jaxhumanoid.ocp.tasks import NO_FORCE_LIMIT, Task, with_force_limit
 from jaxhumanoid.runtime import environment
 from jaxhumanoid.solvers.ipopt import solve_ipopt
 from jaxhumanoid.solvers.ipopt_capi import default_library_path
+from jaxhumanoid.solvers.result import NLPResult
 from jaxhumanoid.strategy.handover import stage_two_start
 from jaxhumanoid.strategy.posture import reseat_for_contact
 from jaxhumanoid.strategy.problem import DEFAULT_STRATEGY_GUESS, Problem, build_problem
+from jaxhumanoid.strategy.runner import Runner
 from jaxhumanoid.strategy.settings import STAGE1_N, SolveSettings
+from jaxhumanoid.strategy.solution import Solution
+from jaxhumanoid.strategy.solve import solve
 
 SCHEME = "A,F+C,2S"
 # Stage 1's options for the benchmark workloads (stage-2 starts, KKT data, fingerprints): fixed
@@ -155,6 +162,33 @@ def stamp(results: Mapping[str, Any]) -> dict[str, Any]:
     have loaded it, its workers do."""
     env = {**environment(), "ipopt_library": default_library_path()}
     return {**git_state(), "environment": env, **results}
+
+
+class StageRun(NamedTuple):
+    """One NLP solve of a strategy, as ``Runner.run`` was called for it and what it returned."""
+
+    stage: str  # the stage's name, e.g. "stage 1 (pseudo-static)" or "stage 2 (dynamic), rerun 1"
+    problem: Problem
+    x0: np.ndarray  # (n,) the start, a copy
+    options: dict[str, Any]  # the solver options of the call
+    result: NLPResult
+
+
+def recorded_solve(**kwargs) -> tuple[Solution, list[StageRun]]:
+    """``solve(**kwargs)`` and every NLP solve it ran, in order: every stage, fallback and rerun
+    goes through ``Runner.run``, which is wrapped for the call. Studies take a stage's problem,
+    start and options from it to solve that stage again under variants."""
+    runs: list[StageRun] = []
+    run = Runner.run
+
+    def record(runner, problem, x0, options, stage):
+        res = run(runner, problem, x0, options, stage)
+        runs.append(StageRun(stage, problem, np.array(x0, dtype=float), dict(options), res))
+        return res
+
+    with mock.patch.object(Runner, "run", record):
+        sol = solve(**kwargs)
+    return sol, runs
 
 
 def write_record(results: Mapping[str, Any], path: str | pathlib.Path, quiet: bool = False) -> pathlib.Path:
