@@ -216,6 +216,20 @@ def test_the_runs_guess_reaches_the_robustness_cases_and_the_builtin_solves():
     assert dict(s.stage1_options) == {"mu_init": 1e-3} and s.guess == SolveSettings().guess
 
 
+def test_the_runs_guess_and_stage1_options_replace_a_task_files():
+    """The reference suites solve each file as posed unless the run sets a guess or stage-1
+    options; then the file's other settings stay and only those change."""
+    from jaxhumanoid.strategy.taskfile import solve_kwargs
+
+    ref = REPO / "examples" / "paper" / "T1.toml"
+    posed = suites._reference_kwargs(ref, "ipm", BenchSettings())
+    assert posed["solver"] == "ipm" and posed["settings"].guess == "linear"
+    assert posed["settings"] == solve_kwargs(str(ref))["settings"] and posed["settings"].handover == "direct"
+    auto = suites._reference_kwargs(ref, "ipopt", BenchSettings(guess="auto", stage1_options={"mu_init": 0.1}, N=20))
+    assert auto["settings"] == posed["settings"].replace(guess="auto", stage1_options={"mu_init": 0.1})
+    assert auto["N"] == 20 and auto["task"].name == posed["task"].name
+
+
 def test_bench_settings_pin_the_workloads_options_where_none_are_set():
     from jaxhumanoid.studies.bench import BENCH_GUESS, BENCH_STAGE1_OPTIONS, BENCH_STAGE2_OPTIONS, bench_settings
 

@@ -78,13 +78,13 @@ def add_bench_parser(sub) -> None:
         "--guess",
         default=None,
         choices=list(STRATEGY_GUESSES),
-        help="table2, agreement and robustness suites: the first stage's initial guess (default solve's, the spec's)",
+        help="the first stage's initial guess (default: solve's, the task file's, the spec's)",
     )
     p.add_argument(
         "--stage1-option",
         action="append",
         metavar="KEY=VALUE",
-        help="table2, agreement and robustness suites: an IPOPT option of stage 1 of 2S, on top of solve's; repeatable",
+        help="an IPOPT option of stage 1 of 2S, on top of solve's, the task file's or the spec's; repeatable",
     )
     p.add_argument("--out", default="bench", help="folder of the records (default bench/)")
     p.add_argument("--quiet", action="store_true", help="no progress lines")

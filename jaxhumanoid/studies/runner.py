@@ -40,10 +40,10 @@ class BenchSettings:
 
     ``N``: the grid of every solve (None: each suite's own, the tasks' N = 100); ``draws``: the
     robustness study's first K draws per task (None: all), the reference-draws suite's draws per
-    file (None: its default); ``guess``: the first stage's initial guess of the built-in tasks'
-    solves and of the robustness study (``STRATEGY_GUESSES``; None: ``solve``'s and the spec's);
-    ``stage1_options``: IPOPT options of stage 1 of 2S in the built-in tasks' solves and the
-    robustness study, added to ``solve``'s and the spec's (None: theirs);
+    file (None: its default); ``guess``: the first stage's initial guess of every suite's solves
+    (``STRATEGY_GUESSES``; None: ``solve``'s, the task file's and the spec's); ``stage1_options``:
+    IPOPT options of stage 1 of 2S in every suite's solves, added to ``solve``'s, the task file's
+    and the spec's (None: theirs);
     ``work_dir``: where suites that write files (a sweep, an external script's record) put them."""
 
     repeats: int = 3

@@ -124,13 +124,21 @@ def _reference_files(settings: BenchSettings) -> list[pathlib.Path]:
     return wanted
 
 
+def _reference_kwargs(path: pathlib.Path, backend: str, settings: BenchSettings) -> dict[str, Any]:
+    """``solve``'s keywords of a task file on ``backend``: the file's, with the run's grid, and
+    the run's initial guess and stage-1 options in place of the file's where the run sets them."""
+    kwargs = {**solve_kwargs(str(path)), "solver": backend, **_grid(settings)}
+    strategy: SolveSettings = kwargs.get("settings") or SolveSettings()
+    if settings.guess is not None:
+        strategy = strategy.replace(guess=settings.guess)
+    if settings.stage1_options is not None:
+        strategy = strategy.replace(stage1_options={**(strategy.stage1_options or {}), **settings.stage1_options})
+    return kwargs | {"settings": strategy}
+
+
 def reference_cases(settings: BenchSettings) -> list[Case]:
     files = _reference_files(settings)
-    return [
-        _solve_case(f"{f.stem} {b}", {**solve_kwargs(str(f)), "solver": b, **_grid(settings)})
-        for f in files
-        for b in settings.backends
-    ]
+    return [_solve_case(f"{f.stem} {b}", _reference_kwargs(f, b, settings)) for f in files for b in settings.backends]
 
 
 def _readme_figures(settings: BenchSettings) -> tuple[pathlib.Path, dict[str, dict[str, Any]]]:
@@ -198,7 +206,7 @@ def reference_draw_weights(kwargs: Mapping[str, Any], draw: int) -> np.ndarray |
 
 
 def _reference_draws_run(path: pathlib.Path, backend: str, settings: BenchSettings) -> Measurement:
-    kwargs = {**solve_kwargs(str(path)), "solver": backend, **_grid(settings)}
+    kwargs = _reference_kwargs(path, backend, settings)
     runs, total = [], 0.0
     for d in range(settings.draws or DEFAULT_REFERENCE_DRAWS):
         m, _ = measured_solve({**kwargs, "weights": reference_draw_weights(kwargs, d)})
