@@ -16,8 +16,8 @@ A variant is a JSON object:
 - ``skip_relaxed``: the continuation without its relaxed-law dynamic solve, stage 1's solution
   handed to the first law after it.
 
-Each case of ``examples/studies/robustness.toml`` (IPOPT, draws below ``--draws``) is solved under
-every variant in one worker process, so that the variants share its compiled NLPs. With
+Each case of ``examples/studies/robustness.toml`` (``--solvers``, default IPOPT; draws below
+``--draws``) is solved under every variant in one worker process, so that the variants share its compiled NLPs. With
 ``--stage1-only`` each solve stops after stage 1 (its fallbacks included), and its row holds the
 guess of the run handed over and the objective at that guess. The record holds one
 row per case and variant (status, iterations per stage, objective, solve time), the commit and the
@@ -138,7 +138,7 @@ def solve_variants(job: tuple[list[str], str, bool]) -> list[dict]:
     rows = []
     for variant in variants:
         _patch(json.loads(variant), stage1_only)
-        row = {"variant": variant, "case": case_id, "task": case.task, "draw": case.draw}
+        row = {"variant": variant, "case": case_id, "task": case.task, "draw": case.draw, "solver": case.solver}
         t0 = time.perf_counter()
         try:
             out = run_mod.solve_case(case, pathlib.Path("/tmp/study_handover_variants"))
@@ -176,6 +176,7 @@ def main() -> None:
     ap.add_argument("--variant", action="append", default=None, help="a JSON object (see above); repeatable")
     ap.add_argument("--stage1-only", action="store_true", help="stop every solve after stage 1")
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--solvers", nargs="+", default=["ipopt"], choices=["ipopt", "ipm", "casadi"])
     args = ap.parse_args()
     import jaxhumanoid  # noqa: F401 - float64 and the BLAS kernels before anything else
     from jaxhumanoid.runtime import environment
@@ -187,7 +188,7 @@ def main() -> None:
     record = json.loads(out.read_text()) if out.exists() else {"rows": []}
     record.update(command=sys.argv, stage1_only=args.stage1_only, **git_state(), environment=environment())
     done = {(r["variant"], r["case"]) for r in record["rows"]}
-    cases = [c.id for c in load_spec(SPEC).cases if c.solver == "ipopt" and (c.draw or 0) < args.draws]
+    cases = [c.id for c in load_spec(SPEC).cases if c.solver in args.solvers and (c.draw or 0) < args.draws]
     jobs = [([v for v in variants if (v, c) not in done], c, args.stage1_only) for c in cases]
     with mp.get_context("spawn").Pool(args.workers, maxtasksperchild=4) as pool:
         for rows in pool.imap_unordered(solve_variants, [j for j in jobs if j[0]]):
@@ -197,6 +198,7 @@ def main() -> None:
                 print(
                     r["task"],
                     r["draw"],
+                    r["solver"],
                     r["variant"],
                     r["success"],
                     r["iterations"],
