@@ -17,6 +17,12 @@ implementation's first guess; IPOPT with the file's options, every stage on it):
   weights rescaled to the sums on its own grid (effort times N1 / N, changes times N / N1); each
   solve's iterations per NLP solve, objective (7), and stage 1's objective under the integrals.
 
+- ``variants``: which known difference to the independent implementation moves stage 1 to its
+  counts (106, 36, 34, 37 iterations)? Stage 1 of draw 0 under every combination of the sums
+  above, the torques of the guess at the start's equilibrium torques u_0 instead of zero, and the
+  start as the file gives it instead of re-seated for the relaxed law (the linear guess made
+  again from it); each run's iterations, status and stage-1 objective under the files' weights.
+
 Prints one line per run and writes a JSON record with the commit and the environment.
 """
 
@@ -27,6 +33,7 @@ import jaxhumanoid.runtime  # noqa: F401  (first: it pins the BLAS kernels befor
 # isort: split
 import argparse
 import dataclasses
+import itertools
 import pathlib
 from unittest import mock
 
@@ -35,7 +42,7 @@ import numpy as np
 
 from jaxhumanoid.solvers.ipopt import solve_ipopt
 from jaxhumanoid.strategy import stage_one as stage_one_mod
-from jaxhumanoid.strategy.problem import Problem
+from jaxhumanoid.strategy.problem import Problem, with_guess
 from jaxhumanoid.strategy.taskfile import load_task_file
 from jaxhumanoid.studies.bench import StageRun, recorded_solve, write_record
 from jaxhumanoid.studies.suites import reference_draw_weights
@@ -71,6 +78,37 @@ def moved_starts(kwargs: dict, starts: int, eps: float) -> dict:
     return out
 
 
+def start_variant(problem: Problem, N: int, start, sums: bool, u_eq: bool, reseat: bool) -> tuple[Problem, np.ndarray]:
+    """Stage 1's ``problem`` and start under one combination of ``variants`` (module docstring);
+    ``start``: the file's start posture, ``N``: the final grid."""
+    if not reseat:
+        p = dataclasses.replace(problem.p, q_start=jnp.asarray(start, dtype=float))
+        problem = with_guess(dataclasses.replace(problem, p=p), "linear")
+    if sums:
+        problem = sums_weighted(problem, N)
+    x0 = problem.bounds.x0
+    if u_eq:
+        L, sl = problem.layout, problem.layout.stage_slices()
+        Z = np.array(problem.full(x0))
+        Z[1 : L.N, sl["u"]] = Z[0, sl["u"]]
+        x0 = np.clip(Z[L.free_mask()], problem.bounds.xl, problem.bounds.xu)
+    return problem, x0
+
+
+def variants(kwargs: dict) -> dict:
+    """Stage 1 of draw 0 under every combination of ``variants`` (module docstring)."""
+    _, runs = recorded_solve(**kwargs)
+    s1 = _stage1(runs)
+    out = {}
+    for sums, u_eq, file_start in itertools.product((False, True), repeat=3):
+        prob, x0 = start_variant(s1.problem, kwargs["N"], kwargs["task"].start, sums, u_eq, not file_start)
+        r = solve_ipopt(prob.nlp, prob.p, prob.bounds, x0=x0, options=s1.options)
+        f = float(s1.problem.nlp.jitted().f(r.x, s1.problem.p))
+        key = f"sums={int(sums)} u_eq={int(u_eq)} reseat={int(not file_start)}"
+        out[key] = [int(r.iterations), r.status, f]
+    return out
+
+
 def whole(kwargs: dict, sums: bool) -> dict:
     """The whole solve, stage 1 weighted as posed or as the paper's sums on its grid; stage 1's
     objective is given under the files' weights either way."""
@@ -101,12 +139,14 @@ def main():
     ap.add_argument("--ref-dir", default="../shared/reference_posing")
     ap.add_argument("--out", default="results/study_reference_stage1.json")
     args = ap.parse_args()
-    record: dict = {"starts": {}, "sums": []}
+    record: dict = {"starts": {}, "variants": {}, "sums": []}
     for task in args.tasks:
         kwargs = load_task_file(pathlib.Path(args.ref_dir) / f"{task}.toml").as_solve_kwargs()
         st = record["starts"][task] = moved_starts(kwargs, args.starts, args.eps)
         ends = sorted(round(m[2], 1) for m in st["moved"])
         print(f"{task} stage 1 as posed {st['as_posed']}; moved starts end at {ends}", flush=True)
+        var = record["variants"][task] = variants(kwargs)
+        print(f"{task} stage 1: " + "; ".join(f"{k}: {v[0]} its, {v[2]:.5g}" for k, v in var.items()), flush=True)
         for draw in range(args.draws):
             kw = {**kwargs, "weights": reference_draw_weights(kwargs, draw)}
             row = {"task": task, "draw": draw, "as_posed": whole(kw, False), "sums": whole(kw, True)}
