@@ -223,13 +223,18 @@ def test_full_task_t3_two_stage_as_ipopt():
     assert sum(s.iterations for s in a.stages) <= 1.5 * sum(s.iterations for s in b.stages)
 
 
-def test_progress_sees_every_iterate_and_keeps_the_iterates():
-    # with a progress callback the IPM runs one jitted iteration at a time: the same iterates,
-    # reported once per iteration (0..k), with the history's objective and infeasibility
+def test_progress_sees_every_iterate_and_keeps_the_iterates(monkeypatch):
+    # with a progress callback the IPM runs its iterations in chunks (here one per call) of the
+    # loop that runs them all at once without it: the same iterates, bit for bit, reported once
+    # per iteration (0..k), with the history's objective and infeasibility
+    from jaxhumanoid.solvers.ipm import driver
+
     nlp, bounds, p, _ = tp.hs071()
     plain = solve_ipm(nlp, p, bounds)
     seen = []
+    monkeypatch.setattr(driver, "MAX_CHUNK", 1)
     stepped = solve_ipm(nlp, p, bounds, progress=lambda k, f, inf: seen.append((k, f, inf)))
+    np.testing.assert_array_equal(stepped.history["obj"], plain.history["obj"])
     assert stepped.iterations == plain.iterations and np.array_equal(stepped.x, plain.x)
     assert [k for k, _, _ in seen] == list(range(plain.iterations + 1))
     np.testing.assert_array_equal([f for _, f, _ in seen], plain.history["obj"])
@@ -242,24 +247,23 @@ def test_progress_sees_every_iterate_and_keeps_the_iterates():
         solve_ipm(nlp, p, bounds, options={"keep_history": False}, progress=lambda *a: None)
 
 
-@pytest.mark.parametrize("stepped", [False, True])
-def test_precompile_compiles_what_the_solve_runs(stepped):
-    """``precompile_ipm`` compiles, in the background, the programs a later solve of the same kind
-    runs (the one program, or the stepped ones with a progress callback): the solve compiles
-    nothing more and its iterates are those of a solve that compiled by itself."""
+@pytest.mark.parametrize("with_progress", [False, True])
+def test_precompile_compiles_what_the_solve_runs(with_progress):
+    """``precompile_ipm`` compiles, in the background, the programs a later solve runs, with or
+    without a progress callback: the solve compiles nothing more and its iterates are those of a
+    solve that compiled by itself."""
     from jaxhumanoid.solvers.ipm import precompile_ipm
 
-    progress = (lambda *a: None) if stepped else None
+    progress = (lambda *a: None) if with_progress else None
     cached, bounds, p, _ = tp.hs071()
-    alone = solve_ipm(dataclasses.replace(cached), p, bounds, progress=progress)
+    alone = solve_ipm(dataclasses.replace(cached), p, bounds)
     nlp = dataclasses.replace(cached)  # the same NLP with an empty cache: nothing compiled
-    future = precompile_ipm(nlp, p, bounds, stepped=stepped)
-    assert precompile_ipm(nlp, p, bounds, stepped=stepped) is future
+    future = precompile_ipm(nlp, p, bounds)
+    assert precompile_ipm(nlp, p, bounds) is future
     future.result()
-    key = ("ipm", "stepped") if stepped else ("ipm", False)
-    compiled = nlp.cache[key]["compiled"]
-    before = set(compiled) if stepped else len(compiled)
-    assert before == {"prepare", "grad_jac", "fg", "start", "advance", "finish"} if stepped else before == 1
+    compiled = nlp.cache[("ipm", "stepped")]["compiled"]
+    before = set(compiled)
+    assert {key[0] for key in before} == {"prepare", "grad_jac", "fg", "start", "advance", "finish"}
     res = solve_ipm(nlp, p, bounds, progress=progress)
-    assert (set(compiled) if stepped else len(compiled)) == before
+    assert set(compiled) == before and res.compile_time_s == 0.0
     assert res.iterations == alone.iterations and np.array_equal(res.x, alone.x)

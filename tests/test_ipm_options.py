@@ -34,11 +34,11 @@ def test_float_fields_are_leaves_and_the_rest_is_structure():
 def test_changing_a_float_option_does_not_recompile_but_a_static_one_does():
     nlp, bounds, p, _ = tp.hs071()
     first = solve_ipm(nlp, p, bounds, options={"tol": 1e-9})
-    compiled = nlp.cache[("ipm", False)]["compiled"]
+    compiled = nlp.cache[("ipm", "stepped")]["compiled"]
     n0 = len(compiled)
     again = solve_ipm(nlp, p, bounds, options={"tol": 1e-7, "mu_init": 0.05, "kappa_sigma": 1e9})
     assert again.compile_time_s == 0.0 and len(compiled) == n0
     assert again.success and again.history["mu"][0] == 0.05 and first.history["mu"][0] == 0.1
     other = solve_ipm(nlp, p, bounds, options={"tol": 1e-9, "max_soc": 2})
-    assert other.compile_time_s > 0.0 and len(compiled) == n0 + 1
+    assert other.compile_time_s > 0.0 and len(compiled) > n0
     assert other.success

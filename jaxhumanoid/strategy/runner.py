@@ -68,7 +68,7 @@ class Runner:
         if self.solver == "ipopt":
             nlp.precompile(bounds.x0, p)
         elif self.solver == "ipm":
-            precompile_ipm(nlp, p, bounds, dict(options), stepped=self.progress is not None)
+            precompile_ipm(nlp, p, bounds, dict(options))
 
     def run(self, problem: Problem, x0, options: Mapping[str, Any], stage: str) -> NLPResult:
         """One solve of ``problem`` from x0 with solver ``options``, reported as ``stage``."""

@@ -19,18 +19,17 @@ from jaxhumanoid.solvers.result import IterationCallback, NLPResult, constraint_
 from jaxhumanoid.solvers.status import SUCCESS, Status
 
 
-def _core(nlp: NLP, batched: bool):
-    """jit (and vmap) of the solver core, cached in ``nlp.cache``: the jitted function of
-    (x0, xl, xu, gl, gu, p, options) and its compiled executables, one per argument structure
-    (the static options are part of the options' pytree structure) and shapes."""
-    key = ("ipm", batched)
+def _batched_core(nlp: NLP):
+    """jit of the vmapped solver core, cached in ``nlp.cache``: the jitted function of batched
+    (x0, xl, xu, gl, gu, p) and shared options, and its compiled executables, one per argument
+    structure (the static options are part of the options' pytree structure) and shapes."""
+    key = ("ipm", "batched")
     if key not in nlp.cache:
 
         def fn(x0, xl, xu, gl, gu, p, opts):
             return solve(nlp, opts, x0, xl, xu, gl, gu, p)
 
-        vfn = jax.vmap(fn, in_axes=(0, 0, 0, 0, 0, 0, None)) if batched else fn
-        nlp.cache[key] = {"fn": jax.jit(vfn), "compiled": {}}
+        nlp.cache[key] = {"fn": jax.jit(jax.vmap(fn, in_axes=(0, 0, 0, 0, 0, 0, None))), "compiled": {}}
     return nlp.cache[key]
 
 
@@ -137,26 +136,31 @@ def _stepped_core(nlp: NLP):
 # a call of the stepped core runs about this long (s) before the host reports its iterations
 REPORT_INTERVAL_S = 0.5
 MAX_CHUNK = 100
+_ALL = np.iinfo(np.int32).max  # a chunk that runs to the end
 
 
-def _run_stepped(core, args, progress: IterationCallback, max_chunks: int | None = None):
-    """``_compile_and_run`` a chunk of iterations at a time, calling ``progress(k, objective,
-    inf_pr)`` for every iteration k from the history after each chunk. A chunk lasts about
-    ``REPORT_INTERVAL_S``: a call costs about a millisecond besides its iterations, a tenth of an
-    iteration of the humanoid's stage 2. The first call of each part compiles it; that time counts
-    as compile time. ``max_chunks`` stops after that many chunks (``precompile_ipm``'s run)."""
+def _run_stepped(core, args, progress: IterationCallback | None, max_chunks: int | None = None):
+    """Run the stepped core: every iteration in one call of ``advance`` without ``progress``;
+    with it, a chunk of iterations at a time, calling ``progress(k, objective, inf_pr)`` for every
+    iteration k from the history after each chunk. The chunks run one compiled loop, so the
+    iterates do not depend on them. A chunk lasts about ``REPORT_INTERVAL_S``: a call costs about a
+    millisecond besides its iterations, a tenth of an iteration of the humanoid's stage 2. The
+    first call of each part compiles it; that time counts as compile time. ``max_chunks`` stops
+    after that many chunks (``precompile_ipm``'s run)."""
     x0, xl, xu, gl, gu, p, opts = args
     compile_time, solve_time = 0.0, 0.0
 
     def call(name, fn, *a):
+        # a part compiles on its first call for each structure (static options) and shapes
         nonlocal compile_time, solve_time
+        key = name, jax.tree.structure(a), tuple(np.shape(v) for v in jax.tree.leaves(a))
         t0 = time.perf_counter()
         out = jax.block_until_ready(fn(*a))
         dt = time.perf_counter() - t0
-        if name in core["compiled"]:
+        if key in core["compiled"]:
             solve_time += dt
         else:
-            core["compiled"].add(name)
+            core["compiled"].add(key)
             compile_time += dt
         return out, dt
 
@@ -166,17 +170,21 @@ def _run_stepped(core, args, progress: IterationCallback, max_chunks: int | None
     (f, g), _ = call("fg", fns.fg, B.x, p)
     (grad, jac), _ = call("grad_jac", fns.grad_jac, B.x, p)
     (S, P), _ = call("start", core["start"], B, p, at_x0, Evals(f=f, g=g, grad=grad, jac=jac), opts)
-    k_done, chunk = 0, 1
-    progress(0, float(S.hist["obj"][0]), float(S.hist["inf_pr"][0]))
+    k_done, chunk = 0, 1 if progress is not None or max_chunks is not None else _ALL
+    if progress is not None:
+        progress(0, float(S.hist["obj"][0]), float(S.hist["inf_pr"][0]))
     chunks = 0
     while not bool(S.done) and (max_chunks is None or chunks < max_chunks):
         chunks += 1
-        S, dt = call("advance", core["advance"], P, S, opts, jnp.asarray(k_done + chunk, jnp.int32))
-        k, obj, inf_pr = jax.device_get((S.k, S.hist["obj"], S.hist["inf_pr"]))
-        for j in range(k_done + 1, int(k) + 1):
-            progress(j, float(obj[j]), float(inf_pr[j]))
-        chunk = int(np.clip(REPORT_INTERVAL_S * (int(k) - k_done) / max(dt, 1e-9), 1, MAX_CHUNK))
-        k_done = int(k)
+        k_stop = min(k_done + chunk, _ALL)
+        S, dt = call("advance", core["advance"], P, S, opts, jnp.asarray(k_stop, jnp.int32))
+        k = int(S.k)
+        if progress is not None:
+            obj, inf_pr = jax.device_get((S.hist["obj"], S.hist["inf_pr"]))
+            for j in range(k_done + 1, k + 1):
+                progress(j, float(obj[j]), float(inf_pr[j]))
+            chunk = int(np.clip(REPORT_INTERVAL_S * (k - k_done) / max(dt, 1e-9), 1, MAX_CHUNK))
+        k_done = k
     out, _ = call("finish", core["finish"], P, S, opts)
     return jax.tree.map(np.asarray, out), solve_time, compile_time
 
@@ -191,11 +199,12 @@ def solve_ipm(
 ) -> NLPResult:
     """Solve the NLP with the own interior-point method; warm start from ``x0`` if given.
 
-    The jitted core is compiled once per (NLP, integer/boolean/string options, argument shapes)
-    and cached; float options (tolerances, mu_init, ...) are runtime inputs and never recompile.
-    The compile time is reported in ``compile_time_s`` (0 on a cache hit). ``progress`` is called
-    with (iteration, objective, primal infeasibility) for every iteration; the solve then runs a
-    chunk of jitted iterations at a time (``_stepped_core``), with the same iterates.
+    The jitted parts (``_stepped_core``) are compiled once per (NLP, integer/boolean/string
+    options, argument shapes) and cached; float options (tolerances, mu_init, ...) are runtime
+    inputs and never recompile. The compile time is reported in ``compile_time_s`` (0 on a cache
+    hit). ``progress`` is called with (iteration, objective, primal infeasibility) for every
+    iteration; the solve then runs a chunk of iterations at a time, with the same iterates bit for
+    bit as without it.
     """
     opts = make_options(options)
     x0 = np.asarray(bounds.x0 if x0 is None else x0, dtype=float)
@@ -204,15 +213,12 @@ def solve_ipm(
         raise ValueError("progress: needs the IPM's history (options keep_history=True)")
     args = _solve_args(x0, bounds, p, opts)
     waited = 0.0
-    pending = nlp.cache.get(("ipm", "precompile", progress is not None))
+    pending = nlp.cache.get(("ipm", "precompile"))
     if pending is not None and not pending.done():  # a compilation started earlier (``precompile_ipm``)
         t0 = time.perf_counter()
         concurrent.futures.wait([pending])
         waited = time.perf_counter() - t0
-    if progress is None:
-        out, solve_time, compile_time = _compile_and_run(_core(nlp, batched=False), args)
-    else:
-        out, solve_time, compile_time = _run_stepped(_stepped_core(nlp), args, progress)
+    out, solve_time, compile_time = _run_stepped(_stepped_core(nlp), args, progress)
     return _package(nlp, out, bounds, opts, solve_time, compile_time + waited)
 
 
@@ -222,25 +228,18 @@ def _solve_args(x0, bounds: Bounds, p, opts: IPMOptions) -> tuple:
     return (*(jnp.asarray(a, float) for a in arrays), p, as_float64(opts))
 
 
-def precompile_ipm(
-    nlp: NLP, p, bounds: Bounds, options: IPMOptions | dict | None = None, stepped: bool = False
-) -> concurrent.futures.Future:
+def precompile_ipm(nlp: NLP, p, bounds: Bounds, options: IPMOptions | dict | None = None) -> concurrent.futures.Future:
     """Compile, in a background thread, the programs that ``solve_ipm(nlp, p', bounds', options=
-    options)`` compiles for a p' and bounds' shaped like ``p`` and ``bounds``, with a progress
-    callback when ``stepped`` (the stepped programs) or without (the one program). Returns a future
-    that is done when they are; a later ``solve_ipm`` of the same kind on ``nlp`` waits for it
-    (the wait counts as its compile time) and then runs at once, e.g. a dynamic stage compiled
-    while stage 1 solves. The stepped programs compile by running: one iteration from
-    ``bounds.x0``. A second call returns the first call's future."""
-    key = ("ipm", "precompile", stepped)
+    options)`` compiles for a p' and bounds' shaped like ``p`` and ``bounds``. Returns a future
+    that is done when they are; a later ``solve_ipm`` on ``nlp`` waits for it (the wait counts as
+    its compile time) and then runs at once, e.g. a dynamic stage compiled while stage 1 solves.
+    The programs compile by running: one iteration from ``bounds.x0``. A second call returns the
+    first call's future."""
+    key = ("ipm", "precompile")
     if key not in nlp.cache:
         args = _solve_args(np.asarray(bounds.x0, float), bounds, p, make_options(options))
-        if stepped:
-            core = _stepped_core(nlp)
-            work = lambda: _run_stepped(core, args, lambda *a: None, max_chunks=1)  # noqa: E731
-        else:
-            core = _core(nlp, batched=False)
-            work = lambda: _compiled(core, args)  # noqa: E731
+        core = _stepped_core(nlp)
+        work = lambda: _run_stepped(core, args, None, max_chunks=1)  # noqa: E731
         pool = concurrent.futures.ThreadPoolExecutor(1)
         nlp.cache[key] = pool.submit(work)
         pool.shutdown(wait=False)
@@ -262,7 +261,7 @@ def batch_solve_ipm(nlp: NLP, p_batch, bounds: Bounds, x0=None, options=None) ->
         return np.broadcast_to(a, (nbatch, size)) if a.ndim == 1 else a
 
     arrs = [bc(x0, nlp.n), bc(bounds.xl, nlp.n), bc(bounds.xu, nlp.n), bc(bounds.gl, nlp.m), bc(bounds.gu, nlp.m)]
-    core = _core(nlp, batched=True)
+    core = _batched_core(nlp)
     args = tuple(jnp.asarray(a) for a in arrs) + (p_batch, as_float64(opts))
     out, solve_time, compile_time = _compile_and_run(core, args)
     results = []
