@@ -9,8 +9,8 @@ Problems: a built-in task key (``T1``..``T4``, as posed) or ``ref:T1`` .. for
 
 - ``stage2``: stage 2 of A,F+C,2S from the same start for both solvers: the last NLP of a
   direct-hand-over 2S solve by IPOPT (stage 1 by IPOPT), with the options that solve gives it
-  (the task file's included). The IPM as one compiled program (``ipm``) and as the command line
-  runs it, one compiled iteration at a time with a progress callback (``ipm_cli``), and IPOPT are
+  (the task file's included). The IPM without a progress callback (``ipm``: its loop in one call)
+  and as the command line runs it, with one (``ipm_cli``: the same loop a chunk at a time), and IPOPT are
   solved in alternation, ``--runs`` times each after one warm-up, timed by CPU time of this
   process and by wall time. Also the counts that set an iteration's cost: the IPM's
   factorisations (inertia-correction trials), line-search trial points (each an evaluation of f
@@ -20,9 +20,8 @@ Problems: a built-in task key (``T1``..``T4``, as posed) or ``ref:T1`` .. for
   fresh process with an empty compilation cache, ``--compile-runs`` times: each stage's compile
   time from its report, the process's CPU and wall time.
 - ``programs``: the programs the IPM compiles for the final NLP of each of ``--compile-tasks``
-  (``N`` = 100, nothing solved): the four parts of the stepped core that the command line runs
-  (prepare, start, advance, finish) and the whole solve in one program (``solve_ipm`` without
-  a progress callback), each traced and compiled in this process: trace and lowering seconds,
+  (``N`` = 100, nothing solved): the four parts of its core (prepare, start, advance, finish),
+  each traced and compiled in this process: trace and lowering seconds,
   XLA compile CPU seconds, lines of StableHLO, and the kernels (fusions) of the optimised HLO.
 - ``spread``: stage 1 of the benchmark tasks by IPOPT under options that change only the
   rounding of its linear solves, and by the IPM (the spread of IPOPT's own iteration counts).
@@ -308,7 +307,6 @@ def programs_part(tasks: list[str], ref_dir: pathlib.Path) -> dict:
         S, P = core["start"](B, p, at_x0, raw, o)
         rows.append(program_sizes("advance", core["advance"], P, S, o, jnp.asarray(1, jnp.int32)))
         rows.append(program_sizes("finish", core["finish"], P, S, o))
-        rows.append(program_sizes("one", driver._core(nlp, batched=False)["fn"], *data, p, o))
         out[name] = rows
     return out
 
