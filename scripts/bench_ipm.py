@@ -378,8 +378,7 @@ def _tally(info, certified, nc):
 
 
 def pivot_census(name: str, ref_dir: pathlib.Path) -> dict:
-    """How the IPM's factorisations pivot over a whole stage-2 solve (``stage2_start``, the command
-    line's stepped programs): the pivot blocks on the quasi-definite fast path and those
+    """How the IPM's factorisations pivot over a whole stage-2 solve (``stage2_start``): the pivot blocks on the quasi-definite fast path and those
     eigen-decomposed, the latter split by the inertia the decomposition finds (the fast path's
     (nbx, nc, 0), more negative eigenvalues, zero ones) and by the smallest of ``RETRY_GAMMAS`` at
     which the fast path would have certified it. Each block is counted by a
@@ -401,7 +400,7 @@ def pivot_census(name: str, ref_dir: pathlib.Path) -> dict:
     problem, x0, opts = stage2_start(name, ref_dir)
     PIVOTS.clear()
     with mock.patch.object(elimination, "_eliminate", counted):
-        r = solve_ipm(problem.nlp, problem.p, problem.bounds, x0=x0, options=opts, progress=lambda k, f, inf: None)
+        r = solve_ipm(problem.nlp, problem.p, problem.bounds, x0=x0, options=opts)
     out = {"iterations": int(r.iterations), "objective": float(r.objective), **ipm_counts(r), **PIVOTS}
     print(
         f"{name}: {out['iterations']} iterations, {out['factorizations']} factorisations; pivot blocks: "

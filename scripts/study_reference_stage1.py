@@ -64,10 +64,9 @@ def _stage1(runs: list[StageRun]) -> StageRun:
     return next(r for r in runs if r.stage.startswith("stage 1"))
 
 
-def moved_starts(kwargs: dict, starts: int, eps: float) -> dict:
-    """Stage 1 of draw 0 from ``starts`` moved copies of its start (module docstring)."""
-    _, runs = recorded_solve(**kwargs)
-    s1 = _stage1(runs)
+def moved_starts(s1: StageRun, starts: int, eps: float) -> dict:
+    """Stage 1 (``s1``, as draw 0's solve ran it) from ``starts`` moved copies of its start
+    (module docstring)."""
     prob, x0, b = s1.problem, s1.x0, s1.problem.bounds
     out: dict = {"as_posed": [int(s1.result.iterations), float(s1.result.objective)], "moved": []}
     for seed in range(1, starts + 1):
@@ -95,16 +94,15 @@ def start_variant(problem: Problem, N: int, start, sums: bool, u_eq: bool, resea
     return problem, x0
 
 
-def variants(kwargs: dict) -> dict:
-    """Stage 1 of draw 0 under every combination of ``variants`` (module docstring)."""
-    _, runs = recorded_solve(**kwargs)
-    s1 = _stage1(runs)
+def variants(s1: StageRun, N: int, start) -> dict:
+    """Stage 1 (``s1``, as draw 0's solve ran it) under every combination of ``variants`` (module
+    docstring); ``N``: the final grid, ``start``: the file's start posture."""
     out = {}
-    for sums, u_eq, file_start in itertools.product((False, True), repeat=3):
-        prob, x0 = start_variant(s1.problem, kwargs["N"], kwargs["task"].start, sums, u_eq, not file_start)
+    for sums, u_eq, reseat in itertools.product((False, True), (False, True), (True, False)):
+        prob, x0 = start_variant(s1.problem, N, start, sums, u_eq, reseat)
         r = solve_ipopt(prob.nlp, prob.p, prob.bounds, x0=x0, options=s1.options)
         f = float(s1.problem.nlp.jitted().f(r.x, s1.problem.p))
-        key = f"sums={int(sums)} u_eq={int(u_eq)} reseat={int(not file_start)}"
+        key = f"sums={int(sums)} u_eq={int(u_eq)} reseat={int(reseat)}"
         out[key] = [int(r.iterations), r.status, f]
     return out
 
@@ -142,10 +140,11 @@ def main():
     record: dict = {"starts": {}, "variants": {}, "sums": []}
     for task in args.tasks:
         kwargs = load_task_file(pathlib.Path(args.ref_dir) / f"{task}.toml").as_solve_kwargs()
-        st = record["starts"][task] = moved_starts(kwargs, args.starts, args.eps)
+        s1 = _stage1(recorded_solve(**kwargs)[1])
+        st = record["starts"][task] = moved_starts(s1, args.starts, args.eps)
         ends = sorted(round(m[2], 1) for m in st["moved"])
         print(f"{task} stage 1 as posed {st['as_posed']}; moved starts end at {ends}", flush=True)
-        var = record["variants"][task] = variants(kwargs)
+        var = record["variants"][task] = variants(s1, kwargs["N"], kwargs["task"].start)
         print(f"{task} stage 1: " + "; ".join(f"{k}: {v[0]} its, {v[2]:.5g}" for k, v in var.items()), flush=True)
         for draw in range(args.draws):
             kw = {**kwargs, "weights": reference_draw_weights(kwargs, draw)}

@@ -132,7 +132,7 @@ def _reference_kwargs(path: pathlib.Path, backend: str, settings: BenchSettings)
     if settings.guess is not None:
         strategy = strategy.replace(guess=settings.guess)
     if settings.stage1_options is not None:
-        strategy = strategy.replace(stage1_options={**(strategy.stage1_options or {}), **settings.stage1_options})
+        strategy = strategy.replace(stage1_options=strategy.merged_stage1_options(settings.stage1_options))
     return kwargs | {"settings": strategy}
 
 
